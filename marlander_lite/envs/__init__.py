@@ -1,0 +1,1 @@
+"""Environment faces shared by both simulators: gymnasium, PettingZoo, and the option parsing."""

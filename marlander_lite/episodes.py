@@ -1,0 +1,231 @@
+"""Batched landing episodes over any swarm simulator.
+
+A *simulator* only moves drones: it is reset, told velocity commands, and reports a
+:class:`SwarmState`. :class:`LandingEpisodes` turns that into the MDP of :mod:`marlander_lite.task`
+(observation, reward, landing, collision, episode end) and applies the motion-capture model of
+:mod:`marlander_lite.sensing`. The gymnasium, stable-baselines3 and PettingZoo faces of both
+simulators are thin layers over this one class.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from marlander_lite import task
+from marlander_lite.platforms import PlatformConfig
+from marlander_lite.rotations import vector_norm
+from marlander_lite.sensing import ObservationChannel, SensingConfig
+from marlander_lite.task import TaskConfig
+
+
+@dataclass
+class SwarmState:
+    """Physical state of ``num_envs`` swarms of ``N`` drones, world frame, SI units."""
+
+    pos: np.ndarray
+    """Drone positions, ``(num_envs, N, 3)`` m."""
+    quat: np.ndarray
+    """Drone attitudes ``(x, y, z, w)``, ``(num_envs, N, 4)``."""
+    vel: np.ndarray
+    """Drone velocities, ``(num_envs, N, 3)`` m/s."""
+    ang_vel: np.ndarray
+    """Drone angular velocities, ``(num_envs, N, 3)`` rad/s."""
+    pad_pos: np.ndarray
+    """Top-face centre of each drone's own pad, ``(num_envs, N, 3)`` m."""
+    pad_vel: np.ndarray
+    """Velocity of each drone's own pad, ``(num_envs, N, 3)`` m/s."""
+    contact: np.ndarray
+    """Contact code per drone (``task.CONTACT_*``) during the last step, ``(num_envs, N)`` int."""
+
+    def take(self, env_ids: np.ndarray) -> SwarmState:
+        """The state of some environments only (copies)."""
+        return SwarmState(**{name: value[env_ids] for name, value in vars(self).items()})
+
+
+class Simulator(Protocol):
+    """What :class:`LandingEpisodes` needs from a physics back end."""
+
+    task: TaskConfig
+    platform: PlatformConfig
+    num_envs: int
+
+    def reset(self, env_ids: np.ndarray, rng: np.random.Generator) -> None:
+        """Place platform and drones of ``env_ids`` at random (``task.sample_spawn_positions``), at rest."""
+
+    def step(self, velocity: np.ndarray) -> None:
+        """Advance every env by one policy period ``task.dt`` tracking ``velocity`` ``(num_envs, N, 3)`` m/s.
+
+        Landed drones ignore their command and stay on their pads.
+        """
+
+    def state(self) -> SwarmState:
+        """Current state of every env."""
+
+    def land(self, landed: np.ndarray) -> None:
+        """Fix the drones where ``landed`` ``(num_envs, N)`` is True to their pads from now on."""
+
+    def close(self) -> None:
+        """Release resources."""
+
+
+@dataclass
+class StepOutcome:
+    """Everything one batched step produced. Arrays are ``(num_envs,)`` or ``(num_envs, N)``."""
+
+    obs: np.ndarray
+    """Observation as the policy sees it (noise and latency applied), ``(num_envs, N, 13)``."""
+    reward: np.ndarray
+    """Team reward ``R_t`` of eq. 4."""
+    drone_rewards: np.ndarray
+    """Per drone ``r_t^i`` of eq. 5."""
+    terminated: np.ndarray
+    """All landed, or a crash, a collision or a drone out of the arena."""
+    truncated: np.ndarray
+    """Time limit reached without termination."""
+    landed: np.ndarray
+    """Drones on their own pads so far."""
+    landed_now: np.ndarray
+    """Drones that landed at this step."""
+    crashed: np.ndarray
+    """Drones that touched anything but a valid landing spot at this step."""
+    collided: np.ndarray
+    """Two drones closer than ``collision_distance`` at this step."""
+    out_of_arena: np.ndarray
+    """Drones outside the arena at this step."""
+    success: np.ndarray
+    """Every drone landed (meaningful once the episode has ended)."""
+    landing_error: np.ndarray
+    """Horizontal distance from the pad centre at touchdown (m); NaN until a drone lands."""
+    landing_time: np.ndarray
+    """Time of each drone's touchdown since the episode start (s); NaN until it lands."""
+    min_separation: np.ndarray
+    """Smallest distance between any two drones so far in the episode (m); inf for one drone."""
+    episode_return: np.ndarray
+    """Sum of ``R_t`` so far in the episode."""
+    episode_length: np.ndarray
+    """Steps so far in the episode."""
+
+    @property
+    def agent_rewards(self) -> np.ndarray:
+        """Per drone ``r_t^i + r^c + K``: each drone's own term plus the shared ones, for per-agent learners."""
+        shared = self.reward - self.drone_rewards.sum(axis=-1)
+        return self.drone_rewards + shared[:, None]
+
+    @property
+    def done(self) -> np.ndarray:
+        """Terminated or truncated."""
+        return self.terminated | self.truncated
+
+
+class LandingEpisodes:
+    """The MARLander MDP over ``simulator.num_envs`` environments stepped together.
+
+    Args:
+        simulator: any :class:`Simulator`.
+        sensing: noise and latency applied to observations.
+        seed: seed of the one random generator that drives resets and noise.
+    """
+
+    def __init__(self, simulator: Simulator, sensing: SensingConfig | None = None, seed: int | None = None) -> None:
+        self.sim = simulator
+        self.task = simulator.task
+        self.sensing = sensing or SensingConfig()
+        self.pad_radius = simulator.platform.geometry.pad_radius
+        e, n = simulator.num_envs, self.task.num_drones
+        self.num_envs, self.num_drones = e, n
+        self.rng = np.random.default_rng(seed)
+        self.channel = ObservationChannel(self.sensing, e, n, self.task.dt)
+        self._goal_lift = np.array([0.0, 0.0, self.task.landed_height])
+        self.steps = np.zeros(e, dtype=np.int64)
+        # Fortran order (env index fastest) matches the simulators' arrays; see pointmass.simulator.
+        self.landed = np.zeros((e, n), dtype=bool, order="F")
+        self.prev_dist = np.zeros((e, n), order="F")
+        self.landing_error = np.full((e, n), np.nan, order="F")
+        self.landing_time = np.full((e, n), np.nan, order="F")
+        self.min_separation = np.full(e, np.inf)
+        self.episode_return = np.zeros(e)
+
+    def seed(self, seed: int | None) -> None:
+        """Restart the random generator: the same seed gives the same resets and noise."""
+        self.rng = np.random.default_rng(seed)
+
+    def true_observations(self) -> np.ndarray:
+        """Eq. 2 observations of the current state without noise or latency, ``(num_envs, N, 13)``."""
+        return self._measure(self.sim.state())[2]
+
+    def _measure(self, s: SwarmState) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        rel_pos = s.pos - (s.pad_pos + self._goal_lift)
+        rel_vel = s.vel - s.pad_vel
+        return rel_pos, rel_vel, task.observe(rel_pos, s.quat, rel_vel, s.ang_vel)
+
+    def reset(self, env_ids: np.ndarray | None = None) -> np.ndarray:
+        """Start new episodes in ``env_ids`` (all by default); returns their observations ``(k, N, 13)``."""
+        ids = np.arange(self.num_envs) if env_ids is None else np.asarray(env_ids)
+        self.sim.reset(ids, self.rng)
+        s = self.sim.state().take(ids)
+        rel_pos, _, obs = self._measure(s)
+        self.steps[ids] = 0
+        self.landed[ids] = False
+        self.prev_dist[ids] = vector_norm(rel_pos)
+        self.landing_error[ids] = np.nan
+        self.landing_time[ids] = np.nan
+        self.episode_return[ids] = 0.0
+        self.min_separation[ids] = task.min_separation(s.pos)
+        return self.channel.reset(ids, obs, self.rng)
+
+    def step(self, action: np.ndarray) -> StepOutcome:
+        """Apply normalised actions (eq. 3) in every env and evaluate the MDP.
+
+        ``action`` is ``(num_envs, 3N)`` or ``(num_envs, N, 3)`` in ``[-1, 1]``. Environments
+        that end are *not* reset here: call :meth:`reset` with their ids.
+        """
+        cfg = self.task
+        velocity = task.action_to_velocity(action, self.num_drones, cfg.max_speed)
+        if velocity.shape[0] != self.num_envs:
+            raise ValueError(f"Action batch has {velocity.shape[0]} environments; expected {self.num_envs}.")
+        self.sim.step(velocity)
+        s = self.sim.state()
+        rel_pos, rel_vel, obs = self._measure(s)
+        dist = vector_norm(rel_pos)
+        speed = vector_norm(rel_vel)
+        horizontal = np.sqrt(rel_pos[..., 0] ** 2 + rel_pos[..., 1] ** 2)
+        active = ~self.landed
+        landed_now, crashed = task.touchdown_outcome(s.contact, horizontal, speed, self.landed, self.pad_radius, cfg)
+        r_drones = task.drone_rewards(self.prev_dist, dist, speed, landed_now, active, cfg)
+        separation = task.min_separation(s.pos)
+        collided = separation < cfg.collision_distance
+        np.minimum(self.min_separation, separation, out=self.min_separation)
+        self.landed |= landed_now
+        all_landed = self.landed.all(axis=-1)
+        reward = task.team_reward(r_drones, collided, all_landed & landed_now.any(axis=-1), cfg)
+        out = task.outside_arena(s.pos, cfg) & active
+        self.steps += 1
+        terminated = all_landed | crashed.any(axis=-1) | collided | out.any(axis=-1)
+        truncated = (self.steps >= cfg.max_steps) & ~terminated
+        if landed_now.any():
+            self.landing_error[landed_now] = horizontal[landed_now]
+            self.landing_time[landed_now] = np.broadcast_to(self.steps[:, None] * cfg.dt, landed_now.shape)[landed_now]
+            self.sim.land(landed_now)
+        self.prev_dist = dist
+        self.episode_return += reward
+        return StepOutcome(
+            obs=self.channel.observe(obs, self.rng),
+            reward=reward,
+            drone_rewards=r_drones,
+            terminated=terminated,
+            truncated=truncated,
+            landed=self.landed.copy(),
+            landed_now=landed_now,
+            crashed=crashed,
+            collided=collided,
+            out_of_arena=out,
+            success=all_landed,
+            landing_error=self.landing_error.copy(),
+            landing_time=self.landing_time.copy(),
+            min_separation=self.min_separation.copy(),
+            episode_return=self.episode_return.copy(),
+            episode_length=self.steps.copy(),
+        )

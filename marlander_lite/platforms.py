@@ -1,0 +1,204 @@
+"""Landing platforms: the plate with one pad per drone, and how it moves.
+
+The paper's hardware (Sec. IV-A) is a 0.5 x 0.5 m acrylic plate on the tool flange of a UR10
+arm, carrying two round pads. Its text gives a pad radius of 0.2 m, which cannot fit twice
+on 0.5 m; we use radius 0.1 m with 0.25 m between pad centres (see ``docs/paper_to_code.md``).
+For ``N`` drones the pads form a near-square grid at the same spacing.
+
+Four motions cover the paper's experiments (Fig. 7):
+
+``static-floor``     the plate lies on the floor (Fig. 7a);
+``static-elevated``  the plate is held still by the UR10, 0.5-1.0 m up (Fig. 7b);
+``moving-linear``    the plate moves back and forth along a straight stroke at constant speed (Fig. 7c);
+``moving-arc``       the UR10 base swings the plate within -pi/2..pi/2 at a constant tool speed
+                     (Sec. IV-C: 0.2 to 0.5 m/s).
+
+The plate keeps its orientation (no yaw) in every motion; this keeps the pads' relative
+positions fixed, which the centralised policy relies on to tell where the other drones are.
+All positions are world-frame metres, ``z`` up; the plate position is the centre of its top face.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Literal, get_args
+
+import numpy as np
+
+PlatformKind = Literal["static-floor", "static-elevated", "moving-linear", "moving-arc"]
+PLATFORM_KINDS: tuple[str, ...] = get_args(PlatformKind)
+MOVING_KINDS: tuple[str, ...] = ("moving-linear", "moving-arc")
+DEFAULT_MOVING_SPEED = 0.35
+"""Tool speed (m/s) used when a moving platform is asked for without a speed: the middle of
+the paper's 0.2-0.5 m/s range."""
+
+
+@dataclass(frozen=True)
+class PlateGeometry:
+    """Size of the plate and its pads."""
+
+    pad_radius: float = 0.1
+    """Radius of each round pad (m); a landing must end within it (paper text: 0.2, see module doc)."""
+    pad_spacing: float = 0.25
+    """Distance between neighbouring pad centres (m)."""
+    pad_thickness: float = 0.0025
+    """Pad thickness (m), as in the paper."""
+    plate_thickness: float = 0.005
+    """Acrylic plate thickness (m); chosen, the paper does not say."""
+    plate_min_side: float = 0.5
+    """Smallest plate side (m): the paper's plate is 0.5 x 0.5 m."""
+
+    def grid_shape(self, num_drones: int) -> tuple[int, int]:
+        """(columns, rows) of the near-square pad grid for ``num_drones`` pads."""
+        cols = math.ceil(math.sqrt(num_drones))
+        return cols, math.ceil(num_drones / cols)
+
+    def half_extents(self, num_drones: int) -> tuple[float, float]:
+        """Half the plate's side lengths (x, y) in metres."""
+        cols, rows = self.grid_shape(num_drones)
+        side_x = max(cols * self.pad_spacing, self.plate_min_side)
+        side_y = max(rows * self.pad_spacing, self.plate_min_side)
+        return side_x / 2, side_y / 2
+
+    def pad_offsets(self, num_drones: int) -> np.ndarray:
+        """Centre of each pad's top face relative to the plate position, ``(num_drones, 3)`` m.
+
+        Pad ``i`` belongs to drone ``i``; the grid is filled row by row along +x, then +y.
+        """
+        cols, rows = self.grid_shape(num_drones)
+        idx = np.arange(num_drones)
+        col, row = idx % cols, idx // cols
+        x = (col - (cols - 1) / 2) * self.pad_spacing
+        y = (row - (rows - 1) / 2) * self.pad_spacing
+        z = np.full(num_drones, self.pad_thickness)
+        return np.stack((x, y, z), axis=-1)
+
+
+@dataclass(frozen=True)
+class PlatformConfig:
+    """Which platform motion, how fast, and the sizes of the UR10 set-up."""
+
+    kind: PlatformKind = "static-floor"
+    """One of ``PLATFORM_KINDS``."""
+    speed: float | None = None
+    """Tool speed for moving kinds (m/s); ``None`` means 0 for static kinds, 0.35 for moving ones."""
+    geometry: PlateGeometry = field(default_factory=PlateGeometry)
+    """Plate and pad sizes."""
+    elevated_height: tuple[float, float] = (0.5, 1.0)
+    """Range of the plate's top height when held by the UR10 (m), drawn uniformly per episode."""
+    linear_stroke: float = 1.0
+    """Length of the straight back-and-forth path of ``moving-linear`` (m)."""
+    arc_radius: float = 0.9
+    """Distance of the plate from the UR10 base axis in ``moving-arc`` (m); the UR10 reaches 1.3 m."""
+    arc_half_angle: float = math.pi / 2
+    """The base swings within ``[-arc_half_angle, +arc_half_angle]`` (rad), as in the paper."""
+
+    def __post_init__(self) -> None:
+        if self.kind not in PLATFORM_KINDS:
+            raise ValueError(f"Unknown platform {self.kind!r}; allowed: {', '.join(PLATFORM_KINDS)}.")
+        if self.speed is not None:
+            if not np.isfinite(self.speed) or self.speed < 0:
+                raise ValueError(f"platform_speed must be a finite number >= 0 m/s, got {self.speed!r}.")
+            if self.kind not in MOVING_KINDS and self.speed > 0:
+                raise ValueError(
+                    f"platform_speed={self.speed} was given for the static platform {self.kind!r}; "
+                    f"use one of {MOVING_KINDS} for a moving platform, or leave the speed out."
+                )
+        lo, hi = self.elevated_height
+        if not 0 < lo <= hi:
+            raise ValueError(f"elevated_height must be (low, high) with 0 < low <= high, got {self.elevated_height}.")
+        if self.linear_stroke <= 0 or self.arc_radius <= 0 or not 0 < self.arc_half_angle <= math.pi:
+            raise ValueError("linear_stroke and arc_radius must be > 0 m and arc_half_angle in (0, pi].")
+
+    @property
+    def resolved_speed(self) -> float:
+        """Tool speed in m/s with the default for moving kinds filled in."""
+        if self.speed is not None:
+            return float(self.speed)
+        return DEFAULT_MOVING_SPEED if self.kind in MOVING_KINDS else 0.0
+
+    @property
+    def is_moving(self) -> bool:
+        return self.kind in MOVING_KINDS
+
+
+def _triangle(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Triangle wave of period 2 in ``u`` going 0 -> 1 -> 0, and the sign of its slope."""
+    m = np.mod(u, 2.0)
+    return 1.0 - np.abs(m - 1.0), np.where(m < 1.0, 1.0, -1.0)
+
+
+class PlatformMotion:
+    """Batched plate trajectories for ``num_envs`` environments.
+
+    Call :meth:`sample` at reset to draw a new placement for some environments, then
+    :meth:`state` with each environment's elapsed time to get the plate's position and
+    velocity, each ``(num_envs, 3)`` in metres and m/s.
+    """
+
+    def __init__(self, config: PlatformConfig, num_envs: int, num_drones: int, arena_half_width: float) -> None:
+        self.config = config
+        self.num_envs = num_envs
+        self.pad_offsets = config.geometry.pad_offsets(num_drones)
+        hx, hy = config.geometry.half_extents(num_drones)
+        self._plate_half_diag = math.hypot(hx, hy)
+        self._arena_half_width = arena_half_width
+        self._free = arena_half_width - self._plate_half_diag - self._path_half_width()
+        if self._free < 0:
+            raise ValueError(
+                f"The {config.kind} platform for {num_drones} drones does not fit in an arena of half width "
+                f"{arena_half_width} m; enlarge the arena or shorten the stroke / arc radius."
+            )
+        self.anchor = np.zeros((num_envs, 3), order="F")
+        """Per env: the plate position (static), the stroke midpoint (linear) or the UR10 base axis (arc)."""
+        self.heading = np.zeros(num_envs)
+        self.phase = np.zeros(num_envs)
+
+    def _path_half_width(self) -> float:
+        if self.config.kind == "moving-linear":
+            return self.config.linear_stroke / 2
+        if self.config.kind == "moving-arc":
+            return self.config.arc_radius
+        return 0.0
+
+    def sample(self, rng: np.random.Generator, env_ids: np.ndarray) -> None:
+        """Draw a new random placement (and phase, for moving kinds) for ``env_ids``."""
+        n = len(env_ids)
+        cfg = self.config
+        self.anchor[env_ids, :2] = rng.uniform(-self._free, self._free, size=(n, 2))
+        if cfg.kind == "static-floor":
+            self.anchor[env_ids, 2] = cfg.geometry.plate_thickness
+        else:
+            self.anchor[env_ids, 2] = rng.uniform(*cfg.elevated_height, size=n)
+        self.heading[env_ids] = rng.uniform(-math.pi, math.pi, size=n)
+        self.phase[env_ids] = rng.uniform(0.0, 2.0, size=n)
+
+    def state(self, t: np.ndarray, env_ids: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Plate position and velocity at elapsed times ``t`` (s), each ``(len(t), 3)``.
+
+        ``t`` holds one time per env, or per env of ``env_ids`` when given.
+        """
+        cfg = self.config
+        speed = cfg.resolved_speed
+        sel = slice(None) if env_ids is None else env_ids
+        pos = np.asfortranarray(self.anchor[sel]).copy(order="F")
+        vel = np.zeros_like(pos)
+        phase, heading = self.phase[sel], self.heading[sel]
+        if cfg.kind == "moving-linear":
+            tri, slope = _triangle(phase + t * speed / cfg.linear_stroke)
+            cos, sin = np.cos(heading), np.sin(heading)
+            along = cfg.linear_stroke * (tri - 0.5)
+            pos[:, 0] += cos * along
+            pos[:, 1] += sin * along
+            vel[:, 0], vel[:, 1] = cos * speed * slope, sin * speed * slope
+        elif cfg.kind == "moving-arc":
+            span = 2.0 * cfg.arc_half_angle
+            omega = speed / cfg.arc_radius
+            tri, slope = _triangle(phase + t * omega / span)
+            theta = heading + cfg.arc_half_angle * (2.0 * tri - 1.0)
+            cos, sin = np.cos(theta), np.sin(theta)
+            pos[:, 0] += cfg.arc_radius * cos
+            pos[:, 1] += cfg.arc_radius * sin
+            vel[:, 0], vel[:, 1] = -sin * speed * slope, cos * speed * slope
+        return pos, vel

@@ -1,0 +1,189 @@
+"""The lightweight simulator: each drone is a point mass that tracks its velocity command.
+
+A Crazyflie under a cascaded velocity PID follows a velocity step roughly like a first-order
+lag whose acceleration saturates when the attitude limit is reached. This module integrates
+exactly that, for every drone of every environment at once, with no Python loop over
+environments. Attitude and angular velocity are derived from the acceleration (a multirotor
+tilts its thrust along ``a + g e_z``), so eq. 2's ``q`` and ``omega`` carry real information.
+
+Speed note: every batched array is Fortran-ordered, so ``pos[..., 0]`` is one contiguous
+plane and per-environment values broadcast over drones without short inner loops. Numpy keeps
+that layout through arithmetic; see ``benchmarks/bench_pointmass.py``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from marlander_lite import task
+from marlander_lite.episodes import SwarmState
+from marlander_lite.platforms import PlatformConfig, PlatformMotion
+from marlander_lite.rotations import IDENTITY_QUAT, vector_norm
+from marlander_lite.task import TaskConfig
+
+GRAVITY = 9.81
+
+
+@dataclass(frozen=True)
+class PointMassParams:
+    """How a point-mass drone answers a velocity command."""
+
+    velocity_time_constant: float = 0.15
+    """Time constant tau of the first-order velocity lag (s)."""
+    max_acceleration: float = 6.0
+    """Largest acceleration magnitude (m/s^2): about g tan(31 deg), a Crazyflie PID's tilt limit."""
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.velocity_time_constant) and self.velocity_time_constant > 0):
+            raise ValueError(f"velocity_time_constant must be > 0 s, got {self.velocity_time_constant!r}.")
+        if not (np.isfinite(self.max_acceleration) and 0 < self.max_acceleration < GRAVITY):
+            raise ValueError(f"max_acceleration must be in (0, {GRAVITY}) m/s^2, got {self.max_acceleration!r}.")
+
+
+def batch_zeros(*shape: int) -> np.ndarray:
+    """Zeros in the engine's layout: Fortran order, the environment index varying fastest."""
+    return np.zeros(shape, order="F")
+
+
+class PointMassSwarm:
+    """``num_envs`` swarms of point-mass drones over moving or static platforms.
+
+    Implements :class:`marlander_lite.episodes.Simulator`; world frame, metres, m/s.
+    """
+
+    def __init__(
+        self,
+        task_config: TaskConfig,
+        platform: PlatformConfig,
+        num_envs: int = 1,
+        params: PointMassParams | None = None,
+    ) -> None:
+        if num_envs < 1:
+            raise ValueError(f"num_envs must be >= 1, got {num_envs}.")
+        self.task, self.platform, self.num_envs = task_config, platform, num_envs
+        self.params = params or PointMassParams()
+        e, n = num_envs, task_config.num_drones
+        self.motion = PlatformMotion(platform, e, n, task_config.arena_half_width)
+        geometry = platform.geometry
+        self._half_x, self._half_y = geometry.half_extents(n)
+        self._pad_radius_sq = geometry.pad_radius**2
+        self._lift = geometry.pad_thickness + task_config.landed_height
+        self._dt = task_config.dt
+        self._blend = 1.0 - np.exp(-self._dt / self.params.velocity_time_constant)
+        self._max_dv = self.params.max_acceleration * self._dt
+        self.time = np.zeros(e)
+        self.pos, self.vel, self.ang_vel = batch_zeros(e, n, 3), batch_zeros(e, n, 3), batch_zeros(e, n, 3)
+        self.quat = batch_zeros(e, n, 4)
+        self.quat[..., 3] = 1.0
+        self._thrust_dir = batch_zeros(e, n, 3)
+        self._thrust_dir[..., 2] = 1.0
+        self.contact = batch_zeros(e, n).astype(np.int8, order="F")
+        self.landed = batch_zeros(e, n).astype(bool, order="F")
+        self._landed_offset = batch_zeros(e, n, 3)
+        self._plate_pos, self._pads, self._pad_vel = batch_zeros(e, 3), batch_zeros(e, n, 3), batch_zeros(e, n, 3)
+        self._update_platform()
+
+    # ------------------------------------------------------------------ Simulator API
+    def reset(self, env_ids: np.ndarray, rng: np.random.Generator) -> None:
+        self.motion.sample(rng, env_ids)
+        self.time[env_ids] = 0.0
+        self._update_platform(env_ids)
+        self.pos[env_ids] = task.sample_spawn_positions(rng, self._plate_pos[env_ids, 2], self.task)
+        for array in (self.vel, self.ang_vel, self.quat, self._thrust_dir):
+            array[env_ids] = 0.0
+        self.quat[env_ids, :, 3] = 1.0
+        self._thrust_dir[env_ids, :, 2] = 1.0
+        self.contact[env_ids] = task.CONTACT_NONE
+        self.landed[env_ids] = False
+
+    def step(self, velocity: np.ndarray) -> None:
+        # First-order lag towards the command, with the change of velocity capped at a_max dt.
+        dv = (velocity - self.vel) * self._blend
+        dv *= np.minimum(1.0, self._max_dv / np.maximum(vector_norm(dv), 1e-12))[..., None]
+        self.pos += (self.vel + 0.5 * dv) * self._dt  # trapezoid: mean of old and new velocity
+        self.vel += dv
+        self._update_attitude(dv)
+        self.time += self._dt
+        if self.platform.is_moving:
+            self._update_platform()
+        self._resolve_contacts()
+        if self.landed.any():
+            self._hold_landed()
+
+    def state(self) -> SwarmState:
+        return SwarmState(
+            pos=self.pos,
+            quat=self.quat,
+            vel=self.vel,
+            ang_vel=self.ang_vel,
+            pad_pos=self._pads,
+            pad_vel=self._pad_vel,
+            contact=self.contact,
+        )
+
+    def land(self, landed: np.ndarray) -> None:
+        self._landed_offset[landed] = (self.pos - self._pads)[landed]
+        self.landed |= landed
+        self._hold_landed()
+
+    def close(self) -> None:
+        pass
+
+    # ------------------------------------------------------------------ internals
+    def _update_attitude(self, dv: np.ndarray) -> None:
+        """Tilt along ``a + g e_z`` with zero yaw; angular velocity from the tilt change.
+
+        The quaternion taking ``e_z`` to a unit vector ``d`` is ``(-d_y, d_x, 0, 1 + d_z)``
+        divided by ``sqrt(2 (1 + d_z))``. Over one step the thrust axis turns from ``d_prev`` to
+        ``d`` about ``d_prev x d`` by ``atan2(|d_prev x d|, d_prev . d)``: that angle over ``dt``
+        is the angular velocity (yaw never changes).
+        """
+        d = dv * (1.0 / self._dt)
+        d[..., 2] += GRAVITY
+        d /= vector_norm(d)[..., None]
+        dx, dy, dz = d[..., 0], d[..., 1], d[..., 2]
+        px, py, pz = self._thrust_dir[..., 0], self._thrust_dir[..., 1], self._thrust_dir[..., 2]
+        cx, cy, cz = py * dz - pz * dy, pz * dx - px * dz, px * dy - py * dx
+        sin = np.sqrt(cx * cx + cy * cy + cz * cz)
+        rate = np.arctan2(sin, px * dx + py * dy + pz * dz) / (np.maximum(sin, 1e-12) * self._dt)
+        self.ang_vel[..., 0] = cx * rate
+        self.ang_vel[..., 1] = cy * rate
+        self.ang_vel[..., 2] = cz * rate
+        scale = 1.0 / np.sqrt(2.0 * (1.0 + dz))
+        self.quat[..., 0] = -dy * scale
+        self.quat[..., 1] = dx * scale
+        self.quat[..., 3] = (1.0 + dz) * scale
+        self._thrust_dir = d
+
+    def _update_platform(self, env_ids: np.ndarray | None = None) -> None:
+        """Move the plates to ``self.time`` (only ``env_ids``' when given)."""
+        sel = slice(None) if env_ids is None else env_ids
+        plate_pos, plate_vel = self.motion.state(self.time[sel], env_ids)
+        self._plate_pos[sel] = plate_pos
+        self._pads[sel] = plate_pos[:, None, :] + self.motion.pad_offsets
+        self._pad_vel[sel] = plate_vel[:, None, :]
+
+    def _resolve_contacts(self) -> None:
+        """Stop drones at the floor or the plate and report what they touch."""
+        rx = self.pos[..., 0] - self._plate_pos[:, 0:1]
+        ry = self.pos[..., 1] - self._plate_pos[:, 1:2]
+        over_plate = (np.abs(rx) <= self._half_x) & (np.abs(ry) <= self._half_y)
+        ex, ey = self.pos[..., 0] - self._pads[..., 0], self.pos[..., 1] - self._pads[..., 1]
+        on_own_pad = ex * ex + ey * ey <= self._pad_radius_sq
+        # The pads are 2.5 mm thick: anywhere over the plate counts as pad height, a conservative bound.
+        rest_height = np.where(over_plate, self._plate_pos[:, 2:3] + self._lift, self.task.landed_height)
+        touching = (self.pos[..., 2] <= rest_height) & ~self.landed
+        self.contact = np.where(
+            touching, np.where(on_own_pad, task.CONTACT_OWN_PAD, task.CONTACT_OTHER), task.CONTACT_NONE
+        ).astype(np.int8)
+        if touching.any():
+            np.copyto(self.pos[..., 2], rest_height, where=touching)
+
+    def _hold_landed(self) -> None:
+        mask = self.landed[..., None]
+        np.copyto(self.pos, self._pads + self._landed_offset, where=mask)
+        np.copyto(self.vel, self._pad_vel, where=mask)
+        np.copyto(self.quat, IDENTITY_QUAT, where=mask)
+        np.copyto(self.ang_vel, 0.0, where=mask)

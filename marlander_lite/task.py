@@ -1,0 +1,334 @@
+"""The MARLander MDP (paper Sec. III-B/C), written once and shared by every simulator.
+
+Everything here is pure numpy and batched: arrays are ``(num_envs, num_drones, ...)``.
+Both simulators (:mod:`marlander_lite.pointmass`, :mod:`marlander_lite.crazyflie`) and the
+deployment loop (:mod:`marlander_lite.deploy`) call these functions, so an observation or a
+reward means the same thing everywhere.
+
+Paper symbol -> code:
+
+=====================  ===============================================================
+eq. 2  ``O_t^i``       :func:`observe` -> ``(..., 13)``: ``[p, q, v, omega]``
+eq. 3  ``A_t^i``       :func:`action_to_velocity`, :func:`next_target_position`
+eq. 4  ``R_t``         :func:`team_reward`
+eq. 5  ``r_t^i``       :func:`drone_rewards` (``alpha``, ``beta``, ``c``)
+eq. 6  ``r^c``         :func:`collision_penalty` (``alpha_c``), :func:`min_separation`
+``K``                  :func:`team_reward` when every drone has landed
+landing                :func:`touchdown_outcome`
+=====================  ===============================================================
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from marlander_lite.rotations import vector_norm
+
+OBS_PER_DRONE = 13
+"""Length of one drone's observation (eq. 2): position 3, quaternion 4, velocity 3, angular velocity 3."""
+ACT_PER_DRONE = 3
+"""Length of one drone's action (eq. 3): a velocity command along x, y, z."""
+
+OBS_LIMITS = (20.0, 1.0, 50.0, 200.0)
+"""Bounds of |p| (m), |q|, |v| (m/s), |omega| (rad/s) per component: observations are clipped to
+them. Only a crash or a drone far outside the arena reaches them."""
+
+CONTACT_NONE, CONTACT_OWN_PAD, CONTACT_OTHER = 0, 1, 2
+"""Contact codes a simulator reports per drone: touching nothing, its own pad, or anything else."""
+
+
+@dataclass(frozen=True)
+class TaskConfig:
+    """Constants of the MARLander MDP.
+
+    Values the paper publishes are the defaults (``max_speed``, the 4 x 4 x 4 m arena). The
+    reward constants are not published: the defaults below are ours, chosen so that shaping
+    (``alpha``) dominates while flying, a landing (``c``, ``K``) is worth a few metres of
+    approach, and a collision (``alpha_c``) costs more than a landing earns.
+    """
+
+    num_drones: int = 2
+    """Number of drones N (the paper flies 2)."""
+    max_speed: float = 3.0
+    """Largest commanded speed per axis (m/s); action 1.0 maps to it (paper: 3 m/s)."""
+    policy_hz: float = 24.0
+    """Rate at which the policy acts (Hz); dt = 1 / policy_hz. Chosen: two 48 Hz PID ticks per action."""
+    episode_seconds: float = 10.0
+    """Time limit of an episode (s); the episode is truncated after it."""
+    arena_half_width: float = 2.0
+    """The arena spans [-w, w] in x and y (m): the paper's 4 x 4 m footprint."""
+    arena_height: float = 4.0
+    """The arena spans [0, h] in z (m): the paper's 4 m height."""
+    spawn_height_min: float = 0.5
+    """Lowest starting height of a drone (m)."""
+    spawn_clearance: float = 0.3
+    """Drones start at least this high above the plate top (m)."""
+    spawn_ceiling_margin: float = 0.3
+    """Drones start at least this far below the arena ceiling (m)."""
+    spawn_separation: float = 0.5
+    """Smallest distance between two drones at the start (m)."""
+    alpha: float = 10.0
+    """Position shaping factor of eq. 5 (reward per metre of approach)."""
+    beta: float = -0.02
+    """Speed factor of eq. 5 (reward per m/s of speed relative to the platform, per step); <= 0 penalises speed."""
+    c: float = 10.0
+    """Landing reward of eq. 5, paid to a drone once, at the step it lands on its own pad."""
+    alpha_c: float = 20.0
+    """Collision penalty of eq. 6, subtracted at the step two drones come closer than ``collision_distance``."""
+    K: float = 20.0
+    """Final reward of eq. 4, paid once when every drone has landed."""
+    collision_distance: float = 0.15
+    """Two drones collide when their centres are closer than this (m): CF2X radius 0.06 m, doubled, plus margin."""
+    touchdown_speed_max: float = 0.5
+    """A touchdown on the own pad counts as a landing only below this speed relative to the pad (m/s)."""
+    landed_height: float = 0.0125
+    """Height of a drone's body origin above a surface it rests on (m): half the CF2X collision cylinder."""
+
+    def __post_init__(self) -> None:
+        checks: list[tuple[bool, str]] = [
+            (
+                isinstance(self.num_drones, int | np.integer) and self.num_drones >= 1,
+                "num_drones must be an integer >= 1",
+            ),
+            (self.max_speed > 0, "max_speed must be > 0 m/s"),
+            (self.policy_hz > 0, "policy_hz must be > 0 Hz"),
+            (self.episode_seconds > 0, "episode_seconds must be > 0 s"),
+            (self.arena_half_width > 0 and self.arena_height > 0, "the arena sizes must be > 0 m"),
+            (self.beta <= 0, "beta must be <= 0 (it penalises speed, eq. 5)"),
+            (
+                self.alpha >= 0 and self.c >= 0 and self.K >= 0 and self.alpha_c >= 0,
+                "alpha, c, K, alpha_c must be >= 0",
+            ),
+            (self.collision_distance >= 0, "collision_distance must be >= 0 m"),
+            (self.touchdown_speed_max > 0, "touchdown_speed_max must be > 0 m/s"),
+            (
+                self.spawn_height_min + self.spawn_ceiling_margin < self.arena_height,
+                "the spawn heights do not fit in the arena",
+            ),
+        ]
+        for name in (f.name for f in dataclasses.fields(self)):
+            value = getattr(self, name)
+            if isinstance(value, float) and not np.isfinite(value):
+                raise ValueError(f"TaskConfig.{name} must be finite, got {value!r}.")
+        for ok, message in checks:
+            if not ok:
+                raise ValueError(f"Invalid TaskConfig: {message}; got {self!r}.")
+
+    @property
+    def dt(self) -> float:
+        """Policy period (s)."""
+        return 1.0 / self.policy_hz
+
+    @property
+    def max_steps(self) -> int:
+        """Policy steps before the episode is truncated."""
+        return round(self.episode_seconds * self.policy_hz)
+
+    @property
+    def obs_dim(self) -> int:
+        """Length of the centralised observation: 13 N."""
+        return OBS_PER_DRONE * self.num_drones
+
+    @property
+    def act_dim(self) -> int:
+        """Length of the centralised action: 3 N."""
+        return ACT_PER_DRONE * self.num_drones
+
+    def replace(self, **changes: Any) -> TaskConfig:
+        """A copy with some fields changed; unknown names raise with the list of fields."""
+        known = {f.name for f in dataclasses.fields(self)}
+        unknown = sorted(set(changes) - known)
+        if unknown:
+            raise TypeError(f"Unknown TaskConfig field(s) {unknown}; allowed: {sorted(known)}.")
+        return dataclasses.replace(self, **changes)
+
+
+# ----------------------------------------------------------------------------- eq. 2
+
+
+def observe(rel_pos: np.ndarray, quat: np.ndarray, rel_vel: np.ndarray, ang_vel: np.ndarray) -> np.ndarray:
+    """Eq. 2: ``O_t^i = [p_t^i, q_t^i, v_t^i, omega_t^i]``, shape ``(..., 13)``.
+
+    Args:
+        rel_pos: ``p``, drone position minus its goal point (own pad centre raised by
+            ``landed_height``), ``(..., 3)`` m, world frame.
+        quat: ``q``, attitude quaternion ``(x, y, z, w)``, ``(..., 4)``.
+        rel_vel: ``v``, drone velocity minus the platform's, ``(..., 3)`` m/s.
+        ang_vel: ``omega``, angular velocity, ``(..., 3)`` rad/s, world frame.
+
+    Each part is clipped to :data:`OBS_LIMITS`. For a batch ``(num_envs, N, 13)`` the result is
+    laid out so that ``obs.reshape(num_envs, 13 N)`` is a view with the env index varying fastest
+    (a Fortran-ordered matrix), which is cheap to fill from the simulators' arrays.
+    """
+    lead = rel_pos.shape[:-1]
+    if len(lead) == 2:
+        out = np.empty((lead[1], OBS_PER_DRONE, lead[0])).transpose(2, 0, 1)
+    else:
+        out = np.empty((*lead, OBS_PER_DRONE))
+    p_max, _, v_max, w_max = OBS_LIMITS
+    np.clip(rel_pos, -p_max, p_max, out=out[..., 0:3])
+    out[..., 3:7] = quat  # unit quaternions are within [-1, 1] already
+    np.clip(rel_vel, -v_max, v_max, out=out[..., 7:10])
+    np.clip(ang_vel, -w_max, w_max, out=out[..., 10:13])
+    return out
+
+
+def flatten_observations(obs: np.ndarray) -> np.ndarray:
+    """Centralised input of the paper's policy: ``(num_envs, N, 13)`` -> ``(num_envs, 13 N)``."""
+    return obs.reshape(obs.shape[0], -1)
+
+
+# ----------------------------------------------------------------------------- eq. 3
+
+
+def action_to_velocity(action: Any, num_drones: int, max_speed: float) -> np.ndarray:
+    """Eq. 3: normalised actions -> velocity commands ``u`` in m/s, shape ``(num_envs, N, 3)``.
+
+    ``action`` may be ``(3N,)``, ``(N, 3)``, ``(num_envs, 3N)`` or ``(num_envs, N, 3)``, each
+    entry in ``[-1, 1]``. Entries outside are clipped (policies with Gaussian heads sample
+    beyond the box); NaN or infinite entries raise, since no safe velocity can be read from them.
+    """
+    a = np.asarray(action)
+    n3 = ACT_PER_DRONE * num_drones
+    if a.ndim == 1 and a.shape[0] == n3:
+        a = a.reshape(1, num_drones, ACT_PER_DRONE)
+    elif a.ndim == 2 and a.shape == (num_drones, ACT_PER_DRONE):
+        a = a.reshape(1, num_drones, ACT_PER_DRONE)
+    elif a.ndim == 2 and a.shape[1] == n3:
+        a = a.reshape(a.shape[0], num_drones, ACT_PER_DRONE)
+    elif not (a.ndim == 3 and a.shape[1:] == (num_drones, ACT_PER_DRONE)):
+        raise ValueError(
+            f"Action has shape {a.shape}; for {num_drones} drone(s) expected ({n3},), ({num_drones}, 3), "
+            f"(num_envs, {n3}) or (num_envs, {num_drones}, 3)."
+        )
+    # Fortran order: the layout the batched simulators compute in.
+    velocity = np.array(a, dtype=np.float64, order="F")
+    # One float64 sum is finite exactly when every entry is (float32 inputs cannot overflow it).
+    if not np.isfinite(velocity.sum()):
+        raise ValueError(f"Action contains NaN or infinite values: {np.asarray(action)!r}. Every entry must be finite.")
+    np.clip(velocity, -1.0, 1.0, out=velocity)
+    velocity *= max_speed
+    return velocity
+
+
+def next_target_position(pos: np.ndarray, velocity: np.ndarray, dt: float) -> np.ndarray:
+    """Eq. 3's use: the position the controller is sent to next, ``p + u dt`` (m)."""
+    return pos + velocity * dt
+
+
+# ----------------------------------------------------------------------------- eqs. 4-6
+
+
+def drone_rewards(
+    prev_dist: np.ndarray,
+    dist: np.ndarray,
+    rel_speed: np.ndarray,
+    landed_now: np.ndarray,
+    active: np.ndarray,
+    config: TaskConfig,
+) -> np.ndarray:
+    """Eq. 5: ``r_t^i = alpha (|p_{t-1}| - |p_t|) + beta |v_t| + c`` per drone, ``(num_envs, N)``.
+
+    ``c`` is paid only at the step drone ``i`` lands; drones that landed earlier (``active`` is
+    False) earn nothing more.
+    """
+    r = config.alpha * (prev_dist - dist) + config.beta * rel_speed + config.c * landed_now
+    return np.where(active, r, 0.0)
+
+
+def collision_penalty(collided: np.ndarray, config: TaskConfig) -> np.ndarray:
+    """Eq. 6: ``r^c = -alpha_c`` in environments where a collision happened this step, else 0."""
+    return np.where(collided, -config.alpha_c, 0.0)
+
+
+def team_reward(
+    r_drones: np.ndarray, collided: np.ndarray, all_landed_now: np.ndarray, config: TaskConfig
+) -> np.ndarray:
+    """Eq. 4: ``R_t = sum_i r_t^i + r^c + K``, ``(num_envs,)``; ``K`` only at the step the last drone lands."""
+    return r_drones.sum(axis=-1) + collision_penalty(collided, config) + config.K * all_landed_now
+
+
+def min_separation(pos: np.ndarray) -> np.ndarray:
+    """Smallest distance between two drone centres in each env, ``(num_envs,)`` m (inf for N = 1).
+
+    Pairs ``(i, i + s)`` are compared for each shift ``s``, so the cost grows with N, not N^2
+    Python operations.
+    """
+    n = pos.shape[-2]
+    best = np.full(pos.shape[:-2], np.inf)
+    for shift in range(1, n):
+        diff = pos[..., shift:, :] - pos[..., :-shift, :]
+        np.minimum(best, vector_norm(diff).min(axis=-1), out=best)
+    return best
+
+
+# ----------------------------------------------------------------------------- landing
+
+
+def touchdown_outcome(
+    contact: np.ndarray,
+    horizontal_error: np.ndarray,
+    rel_speed: np.ndarray,
+    landed_before: np.ndarray,
+    pad_radius: float,
+    config: TaskConfig,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Classify touchdowns: ``(landed_now, crashed)``, each ``(num_envs, N)`` bool.
+
+    A drone lands when it touches its own pad with its centre within ``pad_radius`` of the pad
+    centre and moves slower than ``touchdown_speed_max`` relative to the pad. Any other contact
+    (floor, plate, another pad, too fast, off-centre) is a crash.
+    """
+    touching = (contact != CONTACT_NONE) & ~landed_before
+    landed_now = (
+        touching
+        & (contact == CONTACT_OWN_PAD)
+        & (horizontal_error <= pad_radius)
+        & (rel_speed <= config.touchdown_speed_max)
+    )
+    return landed_now, touching & ~landed_now
+
+
+def outside_arena(pos: np.ndarray, config: TaskConfig) -> np.ndarray:
+    """True for drones outside the ``[-w, w]^2 x [0, h]`` arena, ``(num_envs, N)``."""
+    w, z = config.arena_half_width, pos[..., 2]
+    return (np.abs(pos[..., 0]) > w) | (np.abs(pos[..., 1]) > w) | (z > config.arena_height) | (z < 0)
+
+
+def sample_spawn_positions(
+    rng: np.random.Generator, plate_top: np.ndarray, config: TaskConfig, max_tries: int = 100
+) -> np.ndarray:
+    """Random starting positions in the arena, ``(len(plate_top), N, 3)`` m (paper Sec. III-E).
+
+    x and y are uniform over the arena; z is uniform between ``spawn_height_min`` (and at least
+    ``spawn_clearance`` above the plate top) and ``spawn_ceiling_margin`` below the ceiling.
+    Draws are repeated until every pair of drones is ``spawn_separation`` apart.
+    """
+    n, w = len(plate_top), config.arena_half_width
+    z_lo = np.maximum(config.spawn_height_min, plate_top + config.spawn_clearance)
+    z_hi = config.arena_height - config.spawn_ceiling_margin
+    if np.any(z_lo >= z_hi):
+        raise ValueError(
+            "The plate is too high for drones to start above it; lower elevated_height or raise the arena."
+        )
+
+    def draw(k: int, low: np.ndarray) -> np.ndarray:
+        u = rng.random((k, config.num_drones, 3))
+        u[..., :2] = (2.0 * w) * u[..., :2] - w
+        u[..., 2] = low[:, None] + (z_hi - low[:, None]) * u[..., 2]
+        return u
+
+    pos = draw(n, z_lo)
+    for _ in range(max_tries):
+        redo = np.flatnonzero(min_separation(pos) < config.spawn_separation)
+        if len(redo) == 0:
+            return pos
+        pos[redo] = draw(len(redo), z_lo[redo])
+    raise ValueError(
+        f"Could not place {config.num_drones} drones {config.spawn_separation} m apart in the arena after "
+        f"{max_tries} tries; lower spawn_separation or enlarge the arena."
+    )

@@ -1,0 +1,1 @@
+"""PPO training of MARLander policies: presets, the training loop, logs and export."""

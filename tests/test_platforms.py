@@ -1,0 +1,91 @@
+"""Plate geometry and platform motions against geometry worked by hand."""
+
+import math
+
+import numpy as np
+import pytest
+
+from marlander_lite.platforms import PLATFORM_KINDS, PlateGeometry, PlatformConfig, PlatformMotion
+
+
+def test_two_pads_sit_symmetrically_on_the_paper_plate():
+    g = PlateGeometry()
+    offsets = g.pad_offsets(2)
+    np.testing.assert_allclose(offsets, [[-0.125, 0, 0.0025], [0.125, 0, 0.0025]])
+    assert g.half_extents(2) == (0.25, 0.25)  # the paper's 0.5 x 0.5 m plate
+    # Pads fit on the plate and do not overlap.
+    assert abs(offsets[:, 0]).max() + g.pad_radius <= 0.25
+    assert np.linalg.norm(offsets[0] - offsets[1]) >= 2 * g.pad_radius
+
+
+def test_sixteen_pads_form_a_four_by_four_grid():
+    offsets = PlateGeometry().pad_offsets(16)
+    assert len({tuple(np.round(o, 6)) for o in offsets}) == 16
+    np.testing.assert_allclose(sorted(set(np.round(offsets[:, 0], 6))), [-0.375, -0.125, 0.125, 0.375])
+    assert PlateGeometry().half_extents(16) == (0.5, 0.5)
+
+
+@pytest.mark.parametrize("kind", ["moving-linear", "moving-arc"])
+@pytest.mark.parametrize("speed", [0.2, 0.5])
+def test_moving_platforms_keep_constant_tool_speed(kind, speed):
+    motion = PlatformMotion(PlatformConfig(kind=kind, speed=speed), num_envs=64, num_drones=2, arena_half_width=2.0)
+    motion.sample(np.random.default_rng(0), np.arange(64))
+    t = np.full(64, 1.3)
+    _, vel = motion.state(t)
+    np.testing.assert_allclose(np.linalg.norm(vel, axis=1), speed)
+    # Velocity is the time derivative of position (central difference), away from turning points.
+    h = 1e-4
+    p_plus, _ = motion.state(t + h)
+    p_minus, _ = motion.state(t - h)
+    fd = (p_plus - p_minus) / (2 * h)
+    smooth = np.linalg.norm(fd, axis=1) > 0.99 * speed
+    assert smooth.mean() > 0.9
+    np.testing.assert_allclose(fd[smooth], vel[smooth], atol=1e-6)
+
+
+def test_linear_stroke_turns_back_at_its_ends():
+    cfg = PlatformConfig(kind="moving-linear", speed=0.5, linear_stroke=1.0)
+    motion = PlatformMotion(cfg, 1, 2, 2.0)
+    motion.sample(np.random.default_rng(3), np.arange(1))
+    motion.phase[:] = 0.0  # start at one end of the stroke
+    times = np.linspace(0, 8, 801)
+    pos = np.array([motion.state(np.array([t]))[0][0] for t in times])
+    travelled = np.linalg.norm(pos - pos[0], axis=1)
+    assert travelled.max() == pytest.approx(1.0, abs=1e-9)
+    # One full back-and-forth of 2 m at 0.5 m/s takes 4 s.
+    np.testing.assert_allclose(pos[400], pos[0], atol=1e-9)
+
+
+def test_arc_stays_within_half_turn_of_its_heading():
+    cfg = PlatformConfig(kind="moving-arc", speed=0.5)
+    motion = PlatformMotion(cfg, 200, 2, 2.0)
+    motion.sample(np.random.default_rng(1), np.arange(200))
+    for t in np.linspace(0, 20, 41):
+        pos, _ = motion.state(np.full(200, t))
+        radial = pos[:, :2] - motion.anchor[:, :2]
+        np.testing.assert_allclose(np.linalg.norm(radial, axis=1), cfg.arc_radius)
+        angle = np.arctan2(radial[:, 1], radial[:, 0]) - motion.heading
+        angle = (angle + math.pi) % (2 * math.pi) - math.pi
+        assert np.abs(angle).max() <= math.pi / 2 + 1e-9
+
+
+@pytest.mark.parametrize("kind", PLATFORM_KINDS)
+def test_every_platform_path_stays_inside_the_arena(kind):
+    motion = PlatformMotion(PlatformConfig(kind=kind), 500, 2, 2.0)
+    motion.sample(np.random.default_rng(2), np.arange(500))
+    hx, hy = PlateGeometry().half_extents(2)
+    for t in np.linspace(0, 30, 61):
+        pos, _ = motion.state(np.full(500, t))
+        assert (np.abs(pos[:, 0]) + hx <= 2.0).all() and (np.abs(pos[:, 1]) + hy <= 2.0).all()
+    expected_z = (0.005, 0.005) if kind == "static-floor" else (0.5, 1.0)
+    assert expected_z[0] <= pos[:, 2].min() and pos[:, 2].max() <= expected_z[1]
+
+
+def test_bad_platform_configs_say_what_is_allowed():
+    with pytest.raises(ValueError, match="allowed: static-floor"):
+        PlatformConfig(kind="trampoline")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match=">= 0"):
+        PlatformConfig(kind="moving-arc", speed=-0.2)
+    with pytest.raises(ValueError, match="static platform"):
+        PlatformConfig(kind="static-floor", speed=0.3)
+    assert PlatformConfig(kind="moving-linear").resolved_speed == pytest.approx(0.35)

@@ -1,0 +1,260 @@
+"""The point-mass simulator and its three faces: physics, API checkers, determinism, bad input."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env as gym_check_env
+from pettingzoo.test import parallel_api_test, parallel_seed_test
+from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+import marlander_lite
+from marlander_lite.episodes import LandingEpisodes
+from marlander_lite.platforms import PlatformConfig
+from marlander_lite.pointmass import PointMassParams, PointMassSwarm, PointMassVecEnv
+from marlander_lite.rotations import rotate_vector
+from marlander_lite.sensing import SensingConfig
+from marlander_lite.task import TaskConfig
+
+ENV_ID = "marlander_lite/PointMassLanding-v0"
+
+
+def go_to_pad(obs: np.ndarray, num_drones: int, gain: float = 2.0, speed: float = 1.0) -> np.ndarray:
+    """A hand-written controller: fly to a cone above the pad, then descend along it.
+
+    The target height above the goal is twice the horizontal distance to it (at most 1 m), so
+    the drone arrives from above; it aims 5 cm under the goal so that it really touches the pad.
+    """
+    p = obs.reshape(-1, num_drones, 13)[..., 0:3].copy()
+    horizontal = np.linalg.norm(p[..., :2], axis=-1)
+    p[..., 2] -= np.minimum(2.0 * horizontal, 1.0) - 0.05
+    v = -gain * p
+    norm = np.linalg.norm(v, axis=-1, keepdims=True)
+    v *= np.minimum(1.0, speed / np.maximum(norm, 1e-9))
+    return (v / 3.0).reshape(len(p), -1)
+
+
+def make_episodes(num_envs=1, num_drones=1, platform="static-floor", params=None, sensing=None, **task):
+    sim = PointMassSwarm(TaskConfig(num_drones=num_drones, **task), PlatformConfig(kind=platform), num_envs, params)
+    episodes = LandingEpisodes(sim, sensing, seed=0)
+    episodes.reset()
+    return sim, episodes
+
+
+# ---------------------------------------------------------------------------- physics
+
+
+def test_small_command_follows_first_order_lag():
+    tau = 0.15
+    sim, episodes = make_episodes(params=PointMassParams(velocity_time_constant=tau))
+    sim.pos[0, 0] = (0.0, 0.0, 2.0)
+    dt = sim.task.dt
+    for k in range(1, 13):
+        episodes.step(np.array([[0.1, 0.0, 0.0]]))  # 0.3 m/s: acceleration stays under the limit
+        assert sim.vel[0, 0, 0] == pytest.approx(0.3 * (1 - np.exp(-k * dt / tau)), rel=1e-9)
+
+
+def test_large_command_is_acceleration_limited():
+    sim, episodes = make_episodes(params=PointMassParams(max_acceleration=6.0))
+    sim.pos[0, 0] = (0.0, 0.0, 2.0)
+    episodes.step(np.array([[1.0, 0.0, 0.0]]))
+    assert np.linalg.norm(sim.vel[0, 0]) == pytest.approx(6.0 * sim.task.dt)
+    # Position integrates the mean velocity over the step (trapezoid).
+    assert sim.pos[0, 0, 0] == pytest.approx(0.5 * 6.0 * sim.task.dt**2)
+
+
+def test_attitude_tilts_thrust_along_acceleration_plus_gravity():
+    sim, episodes = make_episodes()
+    sim.pos[0, 0] = (0.0, 0.0, 2.0)
+    episodes.step(np.array([[1.0, 0.0, 0.0]]))
+    a = 6.0  # saturated acceleration along +x
+    body_z = rotate_vector(sim.quat[0, 0], np.array([0.0, 0.0, 1.0]))
+    np.testing.assert_allclose(body_z, np.array([a, 0.0, 9.81]) / np.hypot(a, 9.81), atol=1e-12)
+    # Tilting the thrust from +z towards +x is a positive rotation about +y.
+    expected_rate = np.arctan2(a, 9.81) / sim.task.dt
+    assert sim.ang_vel[0, 0, 1] == pytest.approx(expected_rate, rel=0.02)
+    assert abs(sim.ang_vel[0, 0, 0]) < 1e-12
+
+
+def test_touching_the_floor_away_from_the_plate_is_a_crash():
+    sim, episodes = make_episodes()
+    sim.motion.anchor[0] = (1.5, 1.5, 0.005)
+    sim._update_platform()
+    sim.pos[0, 0] = (-1.0, -1.0, 0.3)
+    for _ in range(20):
+        outcome = episodes.step(np.array([[0.0, 0.0, -0.3]]))
+        if outcome.done[0]:
+            break
+    assert outcome.crashed[0, 0] and outcome.terminated[0] and not outcome.success[0]
+    assert sim.pos[0, 0, 2] == pytest.approx(sim.task.landed_height)  # stopped at the floor
+
+
+def test_collision_ends_the_episode_with_alpha_c_penalty():
+    sim, episodes = make_episodes(num_drones=2)
+    sim.pos[0] = [(0.0, 0.0, 2.0), (0.1, 0.0, 2.0)]
+    episodes.prev_dist[:] = np.linalg.norm(sim.pos[0] - (sim._pads[0] + [0, 0, sim.task.landed_height]), axis=-1)
+    outcome = episodes.step(np.zeros((1, 6)))
+    assert outcome.collided[0] and outcome.terminated[0]
+    np.testing.assert_allclose(outcome.reward[0], -20.0 + outcome.drone_rewards[0].sum())
+
+
+@pytest.mark.parametrize("platform", ["static-floor", "static-elevated"])
+def test_hand_written_controller_lands_both_drones_precisely(platform):
+    env = PointMassVecEnv(num_envs=32, num_drones=2, platform=platform, seed=3)
+    obs = env.reset()
+    finished = []
+    for _ in range(400):
+        obs, _, done, infos = env.step(go_to_pad(obs, 2))
+        finished += [infos[i] for i in np.flatnonzero(done)]
+        if len(finished) >= 32:
+            break
+    success = np.mean([f["is_success"] for f in finished])
+    errors = [f["landing_error"] for f in finished if f["is_success"]]
+    # Straight-line flights may cross; most must still land, within 1 cm of the pad centre.
+    assert success >= 0.85
+    assert max(errors) < 0.01
+
+
+def test_a_landed_drone_rides_with_a_moving_platform():
+    sim, episodes = make_episodes(platform="moving-linear")
+    pad = sim._pads[0, 0].copy()
+    sim.pos[0, 0] = pad + np.array([0.0, 0.0, sim.task.landed_height + 0.01])
+    sim.vel[0, 0] = sim._pad_vel[0, 0] + (0.0, 0.0, -0.2)
+    for _ in range(10):
+        outcome = episodes.step((sim._pad_vel[:, :1] + (0.0, 0.0, -0.2)) / 3.0)
+        if outcome.done[0]:
+            break
+    assert outcome.landed[0, 0] and outcome.success[0]
+    offset = sim.pos[0, 0] - sim._pads[0, 0]
+    sim.step(np.zeros((1, 1, 3)))
+    sim.step(np.zeros((1, 1, 3)))
+    np.testing.assert_allclose(sim.pos[0, 0] - sim._pads[0, 0], offset)
+    np.testing.assert_allclose(sim.vel[0, 0], sim._pad_vel[0, 0])
+
+
+# ---------------------------------------------------------------------------- sensing
+
+
+def test_latency_of_one_step_returns_the_previous_observation():
+    task = TaskConfig(num_drones=1)
+    _, episodes = make_episodes(sensing=SensingConfig(latency_s=task.dt))
+    seen, truth = [], []
+    for _ in range(5):
+        truth.append(episodes.true_observations().copy())
+        seen.append(episodes.step(np.array([[0.3, 0.1, -0.2]])).obs.copy())
+    for k in range(1, 5):
+        np.testing.assert_allclose(seen[k], truth[k], atol=1e-12)
+
+
+def test_position_noise_has_the_configured_spread():
+    _, episodes = make_episodes(num_envs=2000, sensing=SensingConfig(pos_noise_std=0.01))
+    outcome = episodes.step(np.zeros((2000, 3)))
+    error = outcome.obs[..., 0:3] - episodes.true_observations()[..., 0:3]
+    assert error.std() == pytest.approx(0.01, rel=0.05)
+
+
+# ---------------------------------------------------------------------------- API checkers
+
+
+def test_gymnasium_and_sb3_checkers_pass():
+    env = gym.make(ENV_ID, num_drones=2)
+    gym_check_env(env.unwrapped, skip_render_check=True)
+    sb3_check_env(env.unwrapped)
+
+
+def test_pettingzoo_checkers_pass():
+    parallel_api_test(marlander_lite.make_parallel_env("pointmass", num_drones=3), num_cycles=300)
+    parallel_seed_test(lambda: marlander_lite.make_parallel_env("pointmass", num_drones=3))
+
+
+@pytest.mark.parametrize("platform", ["static-elevated", "moving-arc"])
+def test_gym_env_rollout_is_deterministic_with_a_seed(platform):
+    def rollout():
+        env = gym.make(ENV_ID, num_drones=2, platform=platform, sensing="vicon")
+        obs, _ = env.reset(seed=7)
+        env.action_space.seed(7)
+        trace = [obs]
+        for _ in range(60):
+            obs, reward, terminated, truncated, _ = env.step(env.action_space.sample())
+            trace += [obs, np.array([reward])]
+            if terminated or truncated:
+                obs, _ = env.reset()
+                trace.append(obs)
+        return np.concatenate(trace)
+
+    np.testing.assert_array_equal(rollout(), rollout())
+
+
+def test_vec_env_rollout_is_deterministic_with_a_seed():
+    def rollout(seed):
+        env = marlander_lite.make_vec_env("pointmass", num_envs=16, num_drones=2, seed=seed, platform="moving-linear")
+        rng = np.random.default_rng(0)
+        obs = [env.reset()]
+        for _ in range(80):
+            o, r, _, _ = env.step(rng.uniform(-1, 1, (16, 6)).astype(np.float32))
+            obs += [o, r[:, None]]
+        return np.concatenate(obs, axis=1)
+
+    a, b, c = rollout(5), rollout(5), rollout(6)
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a, c)
+
+
+def test_vec_env_resets_finished_envs_the_sb3_way():
+    env = marlander_lite.make_vec_env("pointmass", num_envs=8, num_drones=2, seed=0)
+    env.reset()
+    down = np.tile([0.0, 0.0, -1.0], 2).astype(np.float32)
+    for _ in range(200):
+        obs, _, done, infos = env.step(np.tile(down, (8, 1)))
+        if done.any():
+            break
+    i = int(np.flatnonzero(done)[0])
+    assert infos[i]["terminal_observation"].shape == (26,)
+    assert not infos[i]["is_success"] and "episode" in infos[i]
+    assert env.episodes.steps[i] == 0  # the returned observation starts a new episode
+    assert not np.array_equal(obs[i], infos[i]["terminal_observation"])
+    assert dict(infos[int(np.flatnonzero(~done)[0])]) == {} if (~done).any() else True
+
+
+def test_vec_env_trains_with_sb3_ppo():
+    from stable_baselines3 import PPO
+
+    env = marlander_lite.make_vec_env("pointmass", num_envs=8, num_drones=2, seed=0)
+    model = PPO("MlpPolicy", env, n_steps=16, batch_size=64, n_epochs=1, seed=0, device="cpu")
+    model.learn(256)
+    assert model.num_timesteps >= 256
+
+
+# ---------------------------------------------------------------------------- bad input
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "error", "message"),
+    [
+        ({"platform": "trampoline"}, ValueError, "allowed: static-floor"),
+        ({"num_drones": 0}, ValueError, "num_drones"),
+        ({"platform": "moving-arc", "platform_speed": -0.3}, ValueError, ">= 0"),
+        ({"wind": 3.0}, TypeError, "allowed options"),
+        ({"task": {"gamma": 0.9}}, TypeError, "allowed"),
+        ({"sensing": "optitrack"}, ValueError, "vicon"),
+    ],
+)
+def test_bad_env_options_raise_clear_errors(kwargs, error, message):
+    with pytest.raises(error, match=message):
+        gym.make(ENV_ID, **kwargs)
+
+
+def test_bad_actions_raise_and_leave_the_episode_usable():
+    env = gym.make(ENV_ID, num_drones=2).unwrapped
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="NaN"):
+        env.step(np.full(6, np.nan, dtype=np.float32))
+    with pytest.raises(ValueError, match=r"takes \(6,\) or \(2, 3\)"):
+        env.step(np.zeros(4, dtype=np.float32))
+    env.step(np.zeros(6, dtype=np.float32))  # still steps after the rejected actions
+
+
+def test_vec_env_rejects_bad_num_envs():
+    with pytest.raises(ValueError, match="num_envs"):
+        marlander_lite.make_vec_env("pointmass", num_envs=0)
+    with pytest.raises(ValueError, match="allowed: pointmass, crazyflie"):
+        marlander_lite.make_vec_env("mujoco")
