@@ -258,3 +258,22 @@ def test_vec_env_rejects_bad_num_envs():
         marlander_lite.make_vec_env("pointmass", num_envs=0)
     with pytest.raises(ValueError, match="allowed: pointmass, crazyflie"):
         marlander_lite.make_vec_env("mujoco")
+
+
+def test_drone_with_motors_stopped_falls_as_z0_minus_half_g_t_squared():
+    sim, _ = make_episodes(num_drones=2)
+    sim.place(0, np.array([[0.0, 0.0, 2.0], [1.0, 1.0, 1.0]]))
+    sim.stop_motors(np.array([[True, False]]))
+    for k in range(1, 9):
+        sim.step(np.zeros((1, 2, 3)))
+        t = k * sim.task.dt
+        assert sim.pos[0, 0, 2] == pytest.approx(2.0 - 0.5 * 9.81 * t * t, abs=1e-12)
+    np.testing.assert_allclose(sim.pos[0, 1], [1.0, 1.0, 1.0])  # the other drone hovers
+
+
+def test_place_rejects_bad_positions():
+    sim, _ = make_episodes(num_drones=2)
+    with pytest.raises(ValueError, match=r"\(2, 3\)"):
+        sim.place(0, np.zeros((3, 3)))
+    with pytest.raises(ValueError, match="finite"):
+        sim.place(0, np.full((2, 3), np.nan))

@@ -81,6 +81,7 @@ class PointMassSwarm:
         self._thrust_dir[..., 2] = 1.0
         self.contact = batch_zeros(e, n).astype(np.int8, order="F")
         self.landed = batch_zeros(e, n).astype(bool, order="F")
+        self.motors_stopped = batch_zeros(e, n).astype(bool, order="F")
         self._landed_offset = batch_zeros(e, n, 3)
         self._plate_pos, self._pads, self._pad_vel = batch_zeros(e, 3), batch_zeros(e, n, 3), batch_zeros(e, n, 3)
         self._update_platform()
@@ -97,14 +98,23 @@ class PointMassSwarm:
         self._thrust_dir[env_ids, :, 2] = 1.0
         self.contact[env_ids] = task.CONTACT_NONE
         self.landed[env_ids] = False
+        self.motors_stopped[env_ids] = False
 
     def step(self, velocity: np.ndarray) -> None:
         # First-order lag towards the command, with the change of velocity capped at a_max dt.
         dv = (velocity - self.vel) * self._blend
         dv *= np.minimum(1.0, self._max_dv / np.maximum(vector_norm(dv), 1e-12))[..., None]
+        falling = self.motors_stopped.any()
+        if falling:  # no thrust: gravity alone changes the velocity
+            np.copyto(dv, (0.0, 0.0, -GRAVITY * self._dt), where=self.motors_stopped[..., None])
         self.pos += (self.vel + 0.5 * dv) * self._dt  # trapezoid: mean of old and new velocity
         self.vel += dv
+        if falling:
+            old = self.quat.copy(), self.ang_vel.copy(), self._thrust_dir.copy()
         self._update_attitude(dv)
+        if falling:  # a falling drone keeps its attitude (the thrust direction is undefined)
+            for array, before in zip((self.quat, self.ang_vel, self._thrust_dir), old, strict=True):
+                np.copyto(array, before, where=self.motors_stopped[..., None])
         self.time += self._dt
         if self.platform.is_moving:
             self._update_platform()
@@ -131,6 +141,25 @@ class PointMassSwarm:
     def close(self) -> None:
         pass
 
+    # ------------------------------------------------------------------ rehearsal extras
+    def place(self, env_id: int, drone_pos: np.ndarray) -> None:
+        """Put the drones of ``env_id`` at ``drone_pos`` ``(N, 3)`` m, at rest and level (e.g. on the floor)."""
+        pos = np.asarray(drone_pos, dtype=float)
+        if pos.shape != (self.task.num_drones, 3) or not np.isfinite(pos).all():
+            raise ValueError(f"drone_pos must be a finite ({self.task.num_drones}, 3) array, got shape {pos.shape}.")
+        self.pos[env_id] = pos
+        for array in (self.vel, self.ang_vel, self.quat, self._thrust_dir):
+            array[env_id] = 0.0
+        self.quat[env_id, :, 3] = 1.0
+        self._thrust_dir[env_id, :, 2] = 1.0
+        self.landed[env_id] = False
+        self.motors_stopped[env_id] = False
+
+    def stop_motors(self, stopped: np.ndarray) -> None:
+        """Cut the motors of drones where ``stopped`` ``(num_envs, N)`` is True: they fall freely until they
+        touch something, and ignore velocity commands until :meth:`place` or :meth:`reset`."""
+        self.motors_stopped |= np.asarray(stopped, dtype=bool)
+
     # ------------------------------------------------------------------ internals
     def _update_attitude(self, dv: np.ndarray) -> None:
         """Tilt along ``a + g e_z`` with zero yaw; angular velocity from the tilt change.
@@ -142,7 +171,7 @@ class PointMassSwarm:
         """
         d = dv * (1.0 / self._dt)
         d[..., 2] += GRAVITY
-        d /= vector_norm(d)[..., None]
+        d /= np.maximum(vector_norm(d), 1e-12)[..., None]
         dx, dy, dz = d[..., 0], d[..., 1], d[..., 2]
         px, py, pz = self._thrust_dir[..., 0], self._thrust_dir[..., 1], self._thrust_dir[..., 2]
         cx, cy, cz = py * dz - pz * dy, pz * dx - px * dz, px * dy - py * dx
