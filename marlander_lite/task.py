@@ -71,6 +71,10 @@ class TaskConfig:
     """Drones start at least this far below the arena ceiling (m)."""
     spawn_separation: float = 0.5
     """Smallest distance between two drones at the start (m)."""
+    spawn_near_pad_fraction: float = 0.0
+    """Training aid, not in the paper: this fraction of episodes starts with every drone within 0.3 m
+    horizontally and 0.15-1.0 m above its own pad, so landings are practised from the first update.
+    0 (the default, used for every evaluation) keeps the paper's uniform start."""
     alpha: float = 10.0
     """Position shaping factor of eq. 5 (reward per metre of approach)."""
     beta: float = -0.02
@@ -300,13 +304,19 @@ def outside_arena(pos: np.ndarray, config: TaskConfig) -> np.ndarray:
 
 
 def sample_spawn_positions(
-    rng: np.random.Generator, plate_top: np.ndarray, config: TaskConfig, max_tries: int = 100
+    rng: np.random.Generator,
+    plate_top: np.ndarray,
+    config: TaskConfig,
+    pads: np.ndarray | None = None,
+    max_tries: int = 100,
 ) -> np.ndarray:
     """Random starting positions in the arena, ``(len(plate_top), N, 3)`` m (paper Sec. III-E).
 
     x and y are uniform over the arena; z is uniform between ``spawn_height_min`` (and at least
     ``spawn_clearance`` above the plate top) and ``spawn_ceiling_margin`` below the ceiling.
-    Draws are repeated until every pair of drones is ``spawn_separation`` apart.
+    With ``spawn_near_pad_fraction`` > 0 (a training aid) that fraction of environments starts
+    near the pads ``pads`` ``(k, N, 3)`` instead. Draws are repeated until every pair of drones
+    is ``spawn_separation`` apart.
     """
     n, w = len(plate_top), config.arena_half_width
     z_lo = np.maximum(config.spawn_height_min, plate_top + config.spawn_clearance)
@@ -315,19 +325,32 @@ def sample_spawn_positions(
         raise ValueError(
             "The plate is too high for drones to start above it; lower elevated_height or raise the arena."
         )
+    near_fraction = config.spawn_near_pad_fraction
+    if near_fraction and pads is None:
+        raise ValueError("spawn_near_pad_fraction > 0 needs the pad positions.")
 
-    def draw(k: int, low: np.ndarray) -> np.ndarray:
-        u = rng.random((k, config.num_drones, 3))
+    # Each env's kind of start is drawn once, so that redraws for separation keep the fraction.
+    near_pad = rng.random(n) < near_fraction if near_fraction else np.zeros(n, dtype=bool)
+
+    def draw(ids: np.ndarray) -> np.ndarray:
+        u = rng.random((len(ids), config.num_drones, 3))
         u[..., :2] = (2.0 * w) * u[..., :2] - w
-        u[..., 2] = low[:, None] + (z_hi - low[:, None]) * u[..., 2]
+        u[..., 2] = z_lo[ids, None] + (z_hi - z_lo[ids, None]) * u[..., 2]
+        near = near_pad[ids]
+        if near.any():
+            k = int(near.sum())
+            angle = rng.uniform(0, 2 * np.pi, (k, config.num_drones))
+            radius = 0.3 * np.sqrt(rng.random((k, config.num_drones)))
+            offset = np.stack((radius * np.cos(angle), radius * np.sin(angle), rng.uniform(0.15, 1.0, angle.shape)), -1)
+            u[near] = pads[ids[near]] + offset
         return u
 
-    pos = draw(n, z_lo)
+    pos = draw(np.arange(n))
     for _ in range(max_tries):
         redo = np.flatnonzero(min_separation(pos) < config.spawn_separation)
         if len(redo) == 0:
             return pos
-        pos[redo] = draw(len(redo), z_lo[redo])
+        pos[redo] = draw(redo)
     raise ValueError(
         f"Could not place {config.num_drones} drones {config.spawn_separation} m apart in the arena after "
         f"{max_tries} tries; lower spawn_separation or enlarge the arena."

@@ -63,7 +63,7 @@ def test_large_command_is_acceleration_limited():
 
 
 def test_attitude_tilts_thrust_along_acceleration_plus_gravity():
-    sim, episodes = make_episodes()
+    sim, episodes = make_episodes(params=PointMassParams(max_acceleration=6.0))
     sim.pos[0, 0] = (0.0, 0.0, 2.0)
     episodes.step(np.array([[1.0, 0.0, 0.0]]))
     a = 6.0  # saturated acceleration along +x
@@ -253,6 +253,24 @@ def test_bad_actions_raise_and_leave_the_episode_usable():
     env.step(np.zeros(6, dtype=np.float32))  # still steps after the rejected actions
 
 
+def test_domain_randomization_varies_the_response_per_episode():
+    params = PointMassParams(velocity_time_constant=0.1, max_acceleration=4.0, randomization=0.5)
+    sim, _ = make_episodes(num_envs=500, params=params)
+    tau = -sim.task.dt / np.log(1.0 - sim._blend[:, 0, 0])
+    a_max = sim._max_dv[:, 0] / sim.task.dt
+    # Log-uniform within [1/1.5, 1.5] of the nominal values, median near the nominal.
+    assert tau.min() >= 0.1 / 1.5 - 1e-9 and tau.max() <= 0.1 * 1.5 + 1e-9
+    assert a_max.min() >= 4.0 / 1.5 - 1e-9 and a_max.max() <= 4.0 * 1.5 + 1e-9
+    assert np.median(tau) == pytest.approx(0.1, rel=0.1) and np.median(a_max) == pytest.approx(4.0, rel=0.1)
+
+
+def test_near_pad_starts_are_near_the_pads():
+    sim, _ = make_episodes(num_envs=400, num_drones=2, spawn_near_pad_fraction=0.5)
+    offset = sim.pos - sim._pads
+    near = (np.linalg.norm(offset[..., :2], axis=-1) <= 0.3).all(axis=1) & (offset[..., 2] <= 1.0).all(axis=1)
+    assert 0.4 < near.mean() < 0.65  # half by design, plus a few uniform starts that happen to be close
+
+
 def test_vec_env_rejects_bad_num_envs():
     with pytest.raises(ValueError, match="num_envs"):
         marlander_lite.make_vec_env("pointmass", num_envs=0)
@@ -277,3 +295,13 @@ def test_place_rejects_bad_positions():
         sim.place(0, np.zeros((3, 3)))
     with pytest.raises(ValueError, match="finite"):
         sim.place(0, np.full((2, 3), np.nan))
+
+
+def test_a_drone_resting_with_motors_off_stays_at_rest():
+    sim, _ = make_episodes(num_drones=1)
+    sim.place(0, np.array([[1.0, 1.0, 0.3]]))
+    sim.stop_motors(np.array([[True]]))
+    for _ in range(48):  # 2 s: falls 0.29 m in about 0.24 s, then rests
+        sim.step(np.zeros((1, 1, 3)))
+    assert sim.pos[0, 0, 2] == pytest.approx(sim.task.landed_height)
+    assert abs(sim.vel[0, 0, 2]) < 0.5

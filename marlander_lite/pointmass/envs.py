@@ -29,6 +29,16 @@ POINTMASS_OPTIONS = (*COMMON_OPTIONS, "dynamics")
 _NO_INFO = MappingProxyType({})
 
 
+def _params(dynamics: PointMassParams | dict | None) -> PointMassParams | None:
+    if isinstance(dynamics, dict):
+        known = set(PointMassParams.__dataclass_fields__)
+        unknown = sorted(set(dynamics) - known)
+        if unknown:
+            raise TypeError(f"Unknown dynamics field(s) {unknown}; allowed: {sorted(known)}.")
+        return PointMassParams(**dynamics)
+    return dynamics
+
+
 class PointMassLandingEnv(SwarmLandingEnv):
     """``marlander_lite/PointMassLanding-v0``: land N point-mass drones on their own pads.
 
@@ -71,7 +81,7 @@ class PointMassLandingEnv(SwarmLandingEnv):
     ``static-floor``, ``static-elevated``, ``moving-linear``, ``moving-arc``; ``platform_speed`` the
     moving tool speed (m/s, default 0.35); ``task`` a :class:`TaskConfig` or dict of fields to change;
     ``sensing`` a :class:`SensingConfig` or ``"vicon"`` for motion-capture noise and latency;
-    ``dynamics`` a :class:`~marlander_lite.pointmass.simulator.PointMassParams`.
+    ``dynamics`` a :class:`~marlander_lite.pointmass.simulator.PointMassParams` or a dict of its fields.
     """
 
     def __init__(
@@ -81,14 +91,14 @@ class PointMassLandingEnv(SwarmLandingEnv):
         platform_speed: float | None = None,
         task: TaskConfig | dict | None = None,
         sensing: SensingConfig | str | None = None,
-        dynamics: PointMassParams | None = None,
+        dynamics: PointMassParams | dict | None = None,
         **unknown: Any,
     ) -> None:
         reject_unknown(unknown, POINTMASS_OPTIONS, "PointMassLanding-v0")
         task_config, platform_config, sensing_config = build_configs(
             num_drones, platform, platform_speed, task, sensing
         )
-        super().__init__(PointMassSwarm(task_config, platform_config, 1, dynamics), sensing_config)
+        super().__init__(PointMassSwarm(task_config, platform_config, 1, _params(dynamics)), sensing_config)
 
 
 def pointmass_parallel_env(
@@ -97,13 +107,13 @@ def pointmass_parallel_env(
     platform_speed: float | None = None,
     task: TaskConfig | dict | None = None,
     sensing: SensingConfig | str | None = None,
-    dynamics: PointMassParams | None = None,
+    dynamics: PointMassParams | dict | None = None,
     **unknown: Any,
 ) -> SwarmParallelEnv:
     """PettingZoo ``ParallelEnv`` of the point-mass swarm; options as :class:`PointMassLandingEnv`."""
     reject_unknown(unknown, POINTMASS_OPTIONS, "pointmass_parallel_env")
     task_config, platform_config, sensing_config = build_configs(num_drones, platform, platform_speed, task, sensing)
-    return SwarmParallelEnv(PointMassSwarm(task_config, platform_config, 1, dynamics), sensing_config)
+    return SwarmParallelEnv(PointMassSwarm(task_config, platform_config, 1, _params(dynamics)), sensing_config)
 
 
 class PointMassVecEnv(VecEnv):
@@ -126,7 +136,7 @@ class PointMassVecEnv(VecEnv):
         platform_speed: float | None = None,
         task: TaskConfig | dict | None = None,
         sensing: SensingConfig | str | None = None,
-        dynamics: PointMassParams | None = None,
+        dynamics: PointMassParams | dict | None = None,
         seed: int | None = None,
         **unknown: Any,
     ) -> None:
@@ -137,7 +147,7 @@ class PointMassVecEnv(VecEnv):
             num_drones, platform, platform_speed, task, sensing
         )
         self.task, self.platform, self.render_mode = task_config, platform_config, None
-        self.simulator = PointMassSwarm(task_config, platform_config, int(num_envs), dynamics)
+        self.simulator = PointMassSwarm(task_config, platform_config, int(num_envs), _params(dynamics))
         self.episodes = LandingEpisodes(self.simulator, sensing_config, seed)
         self._actions: np.ndarray | None = None
         self._elapsed = 0.0

@@ -30,16 +30,25 @@ GRAVITY = 9.81
 class PointMassParams:
     """How a point-mass drone answers a velocity command."""
 
-    velocity_time_constant: float = 0.15
-    """Time constant tau of the first-order velocity lag (s)."""
-    max_acceleration: float = 6.0
-    """Largest acceleration magnitude (m/s^2): about g tan(31 deg), a Crazyflie PID's tilt limit."""
+    velocity_time_constant: float = 0.051
+    """Time constant tau of the first-order velocity lag (s): least-squares fit to the PyBullet Crazyflie's
+    velocity step responses (``marlander_lite.crazyflie.fit``, notebook 02)."""
+    max_acceleration: float = 4.07
+    """Largest acceleration magnitude (m/s^2): fitted like ``velocity_time_constant`` (the PID's 30 deg tilt
+    limit allows 5.7; the time the drone takes to tilt lowers the effective value)."""
+    randomization: float = 0.0
+    """Domain randomisation: each episode scales tau and a_max by independent factors drawn log-uniformly
+    from [1/(1+r), 1+r]; 0 keeps them fixed. Policies trained with r > 0 cope with other dynamics (PyBullet)."""
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.velocity_time_constant) and self.velocity_time_constant > 0):
             raise ValueError(f"velocity_time_constant must be > 0 s, got {self.velocity_time_constant!r}.")
         if not (np.isfinite(self.max_acceleration) and 0 < self.max_acceleration < GRAVITY):
             raise ValueError(f"max_acceleration must be in (0, {GRAVITY}) m/s^2, got {self.max_acceleration!r}.")
+        if not (np.isfinite(self.randomization) and 0 <= self.randomization <= 2):
+            raise ValueError(f"randomization must be in [0, 2], got {self.randomization!r}.")
+        if self.max_acceleration * (1 + self.randomization) >= GRAVITY:
+            raise ValueError("max_acceleration * (1 + randomization) must stay below g; lower one of them.")
 
 
 def batch_zeros(*shape: int) -> np.ndarray:
@@ -71,8 +80,9 @@ class PointMassSwarm:
         self._pad_radius_sq = geometry.pad_radius**2
         self._lift = geometry.pad_thickness + task_config.landed_height
         self._dt = task_config.dt
-        self._blend = 1.0 - np.exp(-self._dt / self.params.velocity_time_constant)
-        self._max_dv = self.params.max_acceleration * self._dt
+        # Per-env response: blend = 1 - exp(-dt / tau) and the largest velocity change a_max dt.
+        self._blend = np.full((e, 1, 1), 1.0 - np.exp(-self._dt / self.params.velocity_time_constant))
+        self._max_dv = np.full((e, 1), self.params.max_acceleration * self._dt)
         self.time = np.zeros(e)
         self.pos, self.vel, self.ang_vel = batch_zeros(e, n, 3), batch_zeros(e, n, 3), batch_zeros(e, n, 3)
         self.quat = batch_zeros(e, n, 4)
@@ -89,9 +99,17 @@ class PointMassSwarm:
     # ------------------------------------------------------------------ Simulator API
     def reset(self, env_ids: np.ndarray, rng: np.random.Generator) -> None:
         self.motion.sample(rng, env_ids)
+        if self.params.randomization:
+            log_range = np.log1p(self.params.randomization)
+            tau_scale, acc_scale = np.exp(rng.uniform(-log_range, log_range, size=(2, len(env_ids))))
+            tau = self.params.velocity_time_constant * tau_scale
+            self._blend[env_ids, 0, 0] = 1.0 - np.exp(-self._dt / tau)
+            self._max_dv[env_ids, 0] = self.params.max_acceleration * acc_scale * self._dt
         self.time[env_ids] = 0.0
         self._update_platform(env_ids)
-        self.pos[env_ids] = task.sample_spawn_positions(rng, self._plate_pos[env_ids, 2], self.task)
+        self.pos[env_ids] = task.sample_spawn_positions(
+            rng, self._plate_pos[env_ids, 2], self.task, self._pads[env_ids]
+        )
         for array in (self.vel, self.ang_vel, self.quat, self._thrust_dir):
             array[env_ids] = 0.0
         self.quat[env_ids, :, 3] = 1.0
@@ -204,6 +222,11 @@ class PointMassSwarm:
         # The pads are 2.5 mm thick: anywhere over the plate counts as pad height, a conservative bound.
         rest_height = np.where(over_plate, self._plate_pos[:, 2:3] + self._lift, self.task.landed_height)
         touching = (self.pos[..., 2] <= rest_height) & ~self.landed
+        # A drone already resting on a surface stops pushing into it. At the first contact the
+        # impact velocity is kept: the touchdown test needs it.
+        resting = touching & (self.contact != task.CONTACT_NONE)
+        if resting.any():
+            np.copyto(self.vel[..., 2], np.maximum(self.vel[..., 2], 0.0), where=resting)
         self.contact = np.where(
             touching, np.where(on_own_pad, task.CONTACT_OWN_PAD, task.CONTACT_OTHER), task.CONTACT_NONE
         ).astype(np.int8)

@@ -1,0 +1,222 @@
+"""The PyBullet simulator's three faces: gymnasium, stable-baselines3 ``SubprocVecEnv``, PettingZoo."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from functools import partial
+from pathlib import Path
+from typing import Any, ClassVar, Literal
+
+import numpy as np
+from stable_baselines3.common.vec_env import SubprocVecEnv, VecEnv, VecMonitor
+
+from marlander_lite.crazyflie.control import PIDGains
+from marlander_lite.crazyflie.params import CF2XParams, PhysicsConfig, build_physics
+from marlander_lite.crazyflie.simulator import CrazyflieSwarm
+from marlander_lite.envs.gym_env import SwarmLandingEnv
+from marlander_lite.envs.options import COMMON_OPTIONS, build_configs, reject_unknown
+from marlander_lite.envs.parallel_env import SwarmParallelEnv
+from marlander_lite.platforms import PlatformConfig
+from marlander_lite.sensing import SensingConfig
+from marlander_lite.task import TaskConfig
+
+CRAZYFLIE_OPTIONS = (*COMMON_OPTIONS, "physics", "drone", "gains", "gui")
+"""Keyword options of every PyBullet face; the gymnasium env also takes ``render_mode`` and ``video_path``."""
+RenderMode = Literal["rgb_array", "human"]
+RENDER_MODES: tuple[str, ...] = ("rgb_array", "human")
+FRAME_SIZE = (480, 360)
+"""Width and height (pixels) of ``rgb_array`` frames and recorded videos."""
+
+
+def build_simulator(
+    num_drones: int = 2,
+    platform: str | PlatformConfig = "static-floor",
+    platform_speed: float | None = None,
+    task: TaskConfig | Mapping[str, Any] | None = None,
+    sensing: SensingConfig | str | None = None,
+    physics: PhysicsConfig | Mapping[str, Any] | str | None = None,
+    drone: CF2XParams | None = None,
+    gains: PIDGains | None = None,
+    gui: bool = False,
+) -> tuple[CrazyflieSwarm, SensingConfig]:
+    """Validate the options (see :class:`CrazyflieLandingEnv`) and build the simulator."""
+    task_config, platform_config, sensing_config = build_configs(num_drones, platform, platform_speed, task, sensing)
+    if drone is not None and not isinstance(drone, CF2XParams):
+        raise TypeError(f"drone must be a CF2XParams, got {type(drone).__name__}.")
+    if gains is not None and not isinstance(gains, PIDGains):
+        raise TypeError(f"gains must be a PIDGains, got {type(gains).__name__}.")
+    simulator = CrazyflieSwarm(task_config, platform_config, 1, build_physics(physics), drone, gains, bool(gui))
+    return simulator, sensing_config
+
+
+class CrazyflieLandingEnv(SwarmLandingEnv):
+    """``marlander_lite/CrazyflieLanding-v0``: land N PyBullet Crazyflies on their own pads.
+
+    ## Description
+    The MARLander task (Aschu et al., Sec. III) in the physics simulator the paper trained in
+    (Sec. III-F, Fig. 4: PyBullet). N Crazyflie 2.x quadrotors start at random in a 4 x 4 x 4 m
+    arena and must each land on their own pad of a plate that lies on the floor, is held up by
+    a UR10 arm, or is moved by it. One centralised policy sees every drone and commands every
+    drone's velocity. Each command becomes a target position ``p + u dt`` and velocity ``u`` for
+    a cascaded PID (48 Hz) that drives the four motors of a rigid-body model (240 Hz), with
+    ground effect, rotor drag and a bounded downwash model (see
+    :class:`~marlander_lite.crazyflie.params.PhysicsConfig`).
+
+    ## Action Space
+    ``Box(-1, 1, (3N,), float32)``: for each drone in turn, a velocity command along world x, y, z
+    as a fraction of ``max_speed`` (3 m/s) (eq. 3). Entries beyond [-1, 1] are clipped; NaN
+    raises ``ValueError``.
+
+    ## Observation Space
+    ``Box((13N,), float32)``: for each drone in turn (eq. 2), its position relative to its goal
+    point (pad centre raised by ``landed_height``) [m], its attitude quaternion (x, y, z, w), its
+    velocity relative to the platform [m/s] and its angular velocity [rad/s], world frame.
+
+    ## Rewards
+    Eq. 4: ``R_t = sum_i [alpha (|p_{t-1}| - |p_t|) + beta |v_t| + c 1(lands now)] - alpha_c
+    1(collision) + K 1(all landed now)``, with the constants of :class:`~marlander_lite.task.TaskConfig`.
+
+    ## Starting State
+    Platform placed uniformly where its whole path fits in the arena (on the floor, 0.5-1.0 m up
+    on the UR10 column, random phase when moving); drones uniform in the arena, at least 0.3 m
+    above the plate and 0.5 m apart, at rest and level, motors at hover speed.
+
+    ## Episode End
+    Terminated when every drone has landed (success: it touched its own pad, as reported by
+    PyBullet's contact points, within the pad radius and slower than 0.5 m/s relative to it),
+    or when a drone touches anything else or its pad too fast or off-centre (crash), two drones
+    come closer than 0.15 m (collision), or a drone leaves the arena. Truncated after
+    ``episode_seconds`` (10 s, 240 steps at 24 Hz). A landed drone is latched to its pad.
+
+    ## Arguments
+    ``gymnasium.make("marlander_lite/CrazyflieLanding-v0", num_drones=2, platform="static-floor",
+    platform_speed=None, task=None, sensing=None, physics=None, drone=None, gains=None, gui=False,
+    render_mode=None, video_path=None)``: ``platform`` is one of ``static-floor``,
+    ``static-elevated``, ``moving-linear``, ``moving-arc``; ``platform_speed`` the moving tool
+    speed (m/s, default 0.35); ``task`` a :class:`TaskConfig` or dict of fields to change
+    (``policy_hz`` sets the action rate); ``sensing`` a :class:`SensingConfig` or ``"vicon"``;
+    ``physics`` a :class:`PhysicsConfig`, ``"aero"`` (default: ground effect, drag, downwash) or
+    ``"bare"`` (rigid body and motors only), or a dict of its fields (e.g. ``{"control_hz": 30,
+    "downwash": False}``); ``drone`` a :class:`CF2XParams`; ``gains`` a :class:`PIDGains`;
+    ``gui`` opens a PyBullet window; ``render_mode="rgb_array"`` makes :meth:`render` return an
+    image, ``"human"`` opens the window; ``video_path`` records every episode as an animated GIF
+    ``<video_path stem>-<episode>.gif``.
+    """
+
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": list(RENDER_MODES), "render_fps": 24}
+
+    def __init__(
+        self,
+        num_drones: int = 2,
+        platform: str | PlatformConfig = "static-floor",
+        platform_speed: float | None = None,
+        task: TaskConfig | dict | None = None,
+        sensing: SensingConfig | str | None = None,
+        physics: PhysicsConfig | dict | str | None = None,
+        drone: CF2XParams | None = None,
+        gains: PIDGains | None = None,
+        gui: bool = False,
+        render_mode: RenderMode | None = None,
+        video_path: str | os.PathLike | None = None,
+        **unknown: Any,
+    ) -> None:
+        reject_unknown(unknown, (*CRAZYFLIE_OPTIONS, "render_mode", "video_path"), "CrazyflieLanding-v0")
+        if render_mode is not None and render_mode not in RENDER_MODES:
+            raise ValueError(f"Unknown render_mode {render_mode!r}; allowed: None, {', '.join(RENDER_MODES)}.")
+        simulator, sensing_config = build_simulator(
+            num_drones, platform, platform_speed, task, sensing, physics, drone, gains, gui or render_mode == "human"
+        )
+        super().__init__(simulator, sensing_config)
+        self.render_mode = render_mode
+        self.metadata = {**self.metadata, "render_fps": self.task.policy_hz}
+        self.video_path = None if video_path is None else Path(video_path)
+        self._frames: list[np.ndarray] = []
+        self._episode = 0
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
+        out = super().reset(seed=seed, options=options)
+        if self.video_path is not None:
+            self._save_video()
+            self._frames.append(self._frame())
+        return out
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        out = super().step(action)
+        if self.video_path is not None:
+            self._frames.append(self._frame())
+            if out[2] or out[3]:
+                self._save_video()
+        return out
+
+    def render(self) -> np.ndarray | None:
+        """An RGB frame ``(360, 480, 3)`` uint8 in ``"rgb_array"`` mode; the PyBullet window shows ``"human"``."""
+        return self._frame() if self.render_mode == "rgb_array" else None
+
+    def close(self) -> None:
+        if self.video_path is not None:
+            self._save_video()
+        super().close()
+
+    def _frame(self) -> np.ndarray:
+        """A camera image of the arena, looking at the plate from 4 m away."""
+        sim = self.simulator
+        target = (sim.pad_pos[0, :, 0].mean(), sim.pad_pos[0, :, 1].mean(), 0.8)
+        return sim.world.render(*FRAME_SIZE, target=target, distance=4.0)
+
+    def _save_video(self) -> None:
+        """Write the frames recorded so far as ``<stem>-<episode>.gif`` (Pillow), then start afresh."""
+        if len(self._frames) < 2 or self.video_path is None:
+            self._frames = []
+            return
+        from PIL import Image
+
+        path = self.video_path.with_name(f"{self.video_path.stem}-{self._episode:03d}.gif")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        images = [Image.fromarray(frame) for frame in self._frames]
+        images[0].save(
+            path, save_all=True, append_images=images[1:], duration=round(1000 / self.task.policy_hz), loop=0
+        )
+        self._frames = []
+        self._episode += 1
+
+
+def crazyflie_parallel_env(**options: Any) -> SwarmParallelEnv:
+    """PettingZoo ``ParallelEnv`` of the PyBullet swarm, one agent per drone; options as :class:`CrazyflieLandingEnv`
+    (except ``render_mode`` and ``video_path``)."""
+    reject_unknown(
+        {k: v for k, v in options.items() if k not in CRAZYFLIE_OPTIONS}, CRAZYFLIE_OPTIONS, "crazyflie_parallel_env"
+    )
+    simulator, sensing = build_simulator(**options)
+    return SwarmParallelEnv(simulator, sensing)
+
+
+def _make_env(options: dict[str, Any]) -> CrazyflieLandingEnv:
+    return CrazyflieLandingEnv(**options)
+
+
+def make_crazyflie_vec_env(
+    num_envs: int = 1, seed: int | None = None, start_method: str | None = None, **options: Any
+) -> VecEnv:
+    """``num_envs`` PyBullet swarms, one per subprocess (SB3 ``SubprocVecEnv``), wrapped in ``VecMonitor``.
+
+    Env ``i`` is seeded with ``seed + i``; later episodes follow from that seed, so the same
+    seed gives the same rollouts. Finished envs are reset at once (SB3 convention, the last
+    observation in ``infos[i]["terminal_observation"]``); the last step's info also carries
+    ``is_success`` and, from ``VecMonitor``, ``episode`` (``r``, ``l``, ``t``), which SB3 logs as
+    ``rollout/success_rate`` and ``rollout/ep_rew_mean``. Options are those of
+    :class:`CrazyflieLandingEnv` except ``gui``, ``render_mode`` and ``video_path`` (subprocesses run
+    headless; record a video with the single gymnasium env);
+    ``start_method`` is passed to ``SubprocVecEnv`` (default: ``forkserver`` on Linux).
+    """
+    if isinstance(num_envs, bool) or not isinstance(num_envs, int | np.integer) or num_envs < 1:
+        raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}.")
+    allowed = (*COMMON_OPTIONS, "physics", "drone", "gains")
+    reject_unknown({k: v for k, v in options.items() if k not in allowed}, allowed, "make_vec_env('crazyflie')")
+    # Check the options here, in this process, so that a bad one fails with its own message.
+    build_configs(**{k: options[k] for k in COMMON_OPTIONS if k in options})
+    build_physics(options.get("physics"))
+    vec = SubprocVecEnv([partial(_make_env, dict(options)) for _ in range(int(num_envs))], start_method=start_method)
+    if seed is not None:
+        vec.seed(seed)
+    return VecMonitor(vec)

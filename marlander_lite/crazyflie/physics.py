@@ -1,0 +1,110 @@
+"""Forces on a Crazyflie: motors, ground effect, drag and a bounded downwash model.
+
+Each function works on ONE drone (or one pair of drones) with plain floats and the ``math``
+module, and is free of PyBullet, so each formula can be tested on its own. The simulator
+calls them at every control tick and sums their results into ONE force and ONE torque per
+drone, in the body frame, which it hands to PyBullet at every physics step.
+
+Why floats and not numpy arrays over the drones: a swarm has 2 to 8 drones, and a numpy call
+costs about 1 microsecond whatever its size, while a float operation costs about 0.05; a
+drone's whole model is about 100 float operations (see ``benchmarks/bench_crazyflie.py``).
+
+Symbols: ``w_i`` rotor speed (RPM), ``T_i = k_f w_i^2`` rotor thrust (N), ``R`` propeller radius,
+``r_ij`` entries of the drone's rotation matrix (body to world).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+from marlander_lite.crazyflie.params import CF2XParams
+
+RPM_TO_RAD_S = 2.0 * math.pi / 60.0
+Vector = tuple[float, float, float]
+
+
+def motor_wrench(
+    rpm: Sequence[float], params: CF2XParams, thrust_gain: Sequence[float] = (1.0, 1.0, 1.0, 1.0)
+) -> tuple[float, float, float, float]:
+    """Collective thrust and body torques of the four rotors: ``(F_z, tau_x, tau_y, tau_z)`` in N and N m.
+
+    Args:
+        rpm: rotor speeds ``w_1..w_4`` (RPM), motors M1..M4.
+        params: the drone (``k_f``, ``k_m``, rotor positions, yaw signs).
+        thrust_gain: per-rotor thrust multiplier (the ground effect, :func:`ground_effect_gain`).
+
+    Thrust ``T_i = k_f w_i^2 g_i`` acts along body z at rotor ``i``'s centre ``(x_i, y_i)``, so
+    ``tau_x = sum y_i T_i`` and ``tau_y = -sum x_i T_i``; the rotors' drag torques give
+    ``tau_z = sum s_i k_m w_i^2``.
+    """
+    kf, km = params.kf, params.km
+    fz = tx = ty = tz = 0.0
+    for w, g, (x, y), s in zip(rpm, thrust_gain, params.rotor_xy, params.yaw_signs, strict=True):
+        w2 = w * w
+        thrust = kf * w2 * g
+        fz += thrust
+        tx += y * thrust
+        ty -= x * thrust
+        tz += s * km * w2
+    return fz, tx, ty, tz
+
+
+def ground_effect_gain(height: float, params: CF2XParams) -> float:
+    """Thrust multiplier of one rotor at ``height`` (m) above the surface below it: ``1 + C_ge (R / (4 h))^2``.
+
+    The model grows without bound as ``h -> 0``; we bound it by clipping ``h`` at the rotor
+    height of a drone standing level on a surface, ``h_min = collision_height / 2 + rotor_z``
+    (25 mm): no rotor of an upright drone gets closer, and a tilted one must not gain more.
+    With the published ``C_ge = 11.37`` the largest gain is 1.61.
+    """
+    floor = params.collision_height / 2 + params.rotor_z
+    ratio = params.prop_radius / (4.0 * (height if height > floor else floor))
+    return 1.0 + params.ground_effect_coeff * ratio * ratio
+
+
+def drag_force(rpm_sum: float, vel_body: Vector, params: CF2XParams) -> Vector:
+    """Rotor drag in the body frame (N): ``-(sum_i w_i) diag(k_xy, k_xy, k_z) v_body``.
+
+    Args:
+        rpm_sum: ``sum_i w_i`` in RPM (converted to rad/s here).
+        vel_body: the drone's velocity in body axes (m/s).
+
+    Blade flapping and induced drag both grow with rotor speed, hence the factor ``sum w_i``.
+    At hover (about 6,060 rad/s summed) and 3 m/s this is about 0.017 N, 6 % of the weight.
+    """
+    spin = rpm_sum * RPM_TO_RAD_S
+    kxy, kz = params.drag_coeff_xy * spin, params.drag_coeff_z * spin
+    return -kxy * vel_body[0], -kxy * vel_body[1], -kz * vel_body[2]
+
+
+def downwash_push(dz: float, horizontal_sq: float, thrust_above: float, params: CF2XParams) -> float:
+    """Vertical force (N, <= 0) on a drone from the wake of one drone ``dz`` metres above it.
+
+    For a drone ``dz > 0`` below another, at horizontal distance ``d`` (``horizontal_sq = d^2``)::
+
+        F = -min(c1 (R / (4 dz))^2, T_above) * exp(-d^2 / (2 w^2)) * min(1, dz / h_b),
+        w = c2 dz + r_s
+
+    with the published ``(c1, c2, c3) = (2267.18, 0.16, -0.11)`` and ``T_above`` the upper
+    drone's thrust. Three choices, ours, keep the model bounded and continuous:
+
+    * ``min(., T_above)``: the wake carries the momentum of the thrust that made it and cannot
+      push harder than that; the published peak ``c1 (R / 4 dz)^2`` is infinite at ``dz = 0``
+      (two drones at the same height blow up in simulators that use it raw).
+    * the wake width starts at the rotor span ``r_s = arm + R`` (6.3 cm) and widens with the
+      published slope ``c2``; the published offset ``c3`` makes ``|c2 dz + c3|`` shrink to zero
+      0.69 m below the rotor, which we read as a sign slip and do not use.
+    * ``min(1, dz / h_b)`` with ``h_b`` the body height (25 mm): a drone beside another one is
+      not in its wake; this makes the force continuous at ``dz = 0``.
+
+    Returns 0 for ``dz <= 0`` (the other drone is not above).
+    """
+    if dz <= 0.0:
+        return 0.0
+    c1, c2, _ = params.downwash_coeffs
+    ratio = params.prop_radius / (4.0 * dz)
+    peak = min(c1 * ratio * ratio, thrust_above)
+    width = c2 * dz + params.arm + params.prop_radius
+    onset = min(1.0, dz / params.collision_height)
+    return -peak * math.exp(-horizontal_sq / (2.0 * width * width)) * onset

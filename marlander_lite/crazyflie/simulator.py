@@ -1,0 +1,396 @@
+"""``CrazyflieSwarm``: N Crazyflies in PyBullet behind the :class:`~marlander_lite.episodes.Simulator` protocol.
+
+One env step (one policy period ``task.dt``, 1/24 s by default) runs as::
+
+    target = p + u dt                        # eq. 3, task.next_target_position, once per action
+    repeat control_hz / policy_hz times:     # PID ticks (2 by default)
+        rpm    = CascadedPID(state, target, u)                   # control.py
+        wrench = motors (+ ground effect) + drag + downwash      # physics.py, body frame
+        move a moving platform, and the drones latched to it, to where it is at the tick's end
+        one applyExternalForce + one applyExternalTorque per flying drone
+        stepSimulation: PyBullet runs physics_hz / control_hz steps (5 by default) itself
+        one getContactPoints for the whole world; read the drones' state (2 calls per drone)
+
+PyBullet keeps an external force for all the sub-steps of one ``stepSimulation`` call (set
+with ``setPhysicsEngineParameter(fixedTimeStep=1 / control_hz, numSubSteps=...)``), so one
+call per PID tick does the same physics as ``physics_hz / control_hz`` calls at ``1 /
+physics_hz``, with 5 times fewer round trips from Python. Two consequences, both small at
+48 Hz: a force given in the body frame is turned into the world frame once per tick (the drone
+turns by at most a few degrees in 1/48 s), and contacts are read once per tick.
+
+Landing: contact points name the body and link a drone touches, which gives the contact code
+of :mod:`marlander_lite.task` (own pad, anything else); :class:`~marlander_lite.episodes.LandingEpisodes`
+then applies :func:`task.touchdown_outcome`, the same test as for the point-mass simulator.
+PyBullet's solver stops a drone at the contact within the same physics step, so at the end of
+the env step a drone that hit its pad at 3 m/s sits still on it. So that the landing test sees
+the *impact*, the velocity reported for a drone whose contact began during the step is its
+velocity at the control tick before the touch (at most ``1 / control_hz`` earlier).
+A landed drone is latched to its pad: it loses its mass (PyBullet then never moves it), its
+motors stop, and it rides with the pad.
+
+Tracking offset: both PID ticks of an action aim at the same target ``p + u dt``, which stays
+about ``u dt`` ahead of a drone that flies at ``u``; the position term then adds to the velocity
+term, and a constant command settles 6 to 8 % above ``u`` (``K_p / K_d * 0.75 dt``). This is the
+paper's action semantics; a policy trained in closed loop absorbs it.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pybullet as p
+
+from marlander_lite import task
+from marlander_lite.crazyflie.control import CascadedPID, PIDGains, rotation_matrix
+from marlander_lite.crazyflie.params import CF2XParams, PhysicsConfig, ratio_to_count
+from marlander_lite.crazyflie.physics import downwash_push, drag_force, ground_effect_gain, motor_wrench
+from marlander_lite.crazyflie.world import World, connect
+from marlander_lite.episodes import SwarmState
+from marlander_lite.platforms import PlatformConfig, PlatformMotion
+from marlander_lite.task import TaskConfig
+
+CONTACT_TOLERANCE = 1e-3
+"""Contact points closer than this (m) count as touching; PyBullet also reports points up to its
+collision margin apart."""
+_ORIGIN = (0.0, 0.0, 0.0)
+_ZERO = (0.0, 0.0, 0.0)
+_NO_GAIN = (1.0, 1.0, 1.0, 1.0)
+
+
+class CrazyflieSwarm:
+    """One swarm of ``N`` Crazyflies over a platform, in its own PyBullet client.
+
+    Implements :class:`marlander_lite.episodes.Simulator` with ``num_envs = 1`` (batch it with
+    subprocesses, see :func:`marlander_lite.crazyflie.envs.make_crazyflie_vec_env`). Arrays of
+    :meth:`state` are ``(1, N, ...)``, world frame, SI units.
+
+    Args:
+        task_config: the MDP constants (N, policy rate, arena).
+        platform: plate motion.
+        num_envs: must be 1.
+        physics: rates and aerodynamic effects (default: ``PhysicsConfig.preset("aero")``).
+        drone: the quadrotor's constants.
+        gains: the cascaded PID's gains.
+        gui: open a PyBullet window instead of running headless.
+    """
+
+    def __init__(
+        self,
+        task_config: TaskConfig,
+        platform: PlatformConfig,
+        num_envs: int = 1,
+        physics: PhysicsConfig | None = None,
+        drone: CF2XParams | None = None,
+        gains: PIDGains | None = None,
+        gui: bool = False,
+    ) -> None:
+        if num_envs != 1:
+            raise ValueError(
+                f"CrazyflieSwarm simulates one swarm (num_envs=1), got num_envs={num_envs}; "
+                "use make_vec_env('crazyflie', num_envs=...) for several, one per subprocess."
+            )
+        self.task, self.platform, self.num_envs = task_config, platform, 1
+        self.physics = physics or PhysicsConfig.preset("aero")
+        self.params = drone or CF2XParams()
+        self.gains = gains or PIDGains()
+        n = self.num_drones = task_config.num_drones
+        self._ticks_per_action = ratio_to_count(
+            self.physics.control_hz, task_config.policy_hz, "control_hz", "policy_hz"
+        )
+        self.control_dt = 1.0 / self.physics.control_hz
+        """One PID tick (s); PyBullet runs ``physics.steps_per_tick`` physics steps in it."""
+        self.client = connect(gui)
+        self._closed = False
+        self.world = World(self.client, n, platform, self.params, self.physics, task_config.arena_half_width)
+        self.motion = PlatformMotion(platform, 1, n, task_config.arena_half_width)
+        self.controller = CascadedPID(self.params, self.gains, n, self.control_dt)
+        tau, period = self.physics.motor_time_constant, self.control_dt
+        self._motor_decay = math.exp(-period / tau) if tau > 0 else 0.0
+        self._motor_m1 = tau / period * (1.0 - self._motor_decay) if tau > 0 else 0.0
+        self._motor_m2 = tau / (2.0 * period) * (1.0 - self._motor_decay**2) if tau > 0 else 0.0
+        self._half_x, self._half_y = platform.geometry.half_extents(n)
+        self._rotors = self.params.rotor_positions.tolist()
+        self.time = 0.0
+        # Published state, (1, N, ...) as the Simulator protocol wants; views of one buffer that
+        # is filled with one assignment per env step.
+        self._kinematics = np.zeros((1, n, 13))
+        self.pos, self.quat = self._kinematics[..., 0:3], self._kinematics[..., 3:7]
+        self.vel, self.ang_vel = self._kinematics[..., 7:10], self._kinematics[..., 10:13]
+        self.pad_pos, self.pad_vel = np.zeros((1, n, 3)), np.zeros((1, n, 3))
+        self.contact = np.zeros((1, n), dtype=np.int8)
+        self.landed = np.zeros((1, n), dtype=bool)
+        self.motors_stopped = np.zeros((1, n), dtype=bool)
+        self._reported_vel = np.zeros((1, n, 3))
+        # Working state: PyBullet's tuples, read at every control tick.
+        self._poses: list = []
+        self._vels: list = []
+        self.rpm = [[0.0] * 4 for _ in range(n)]
+        """Rotor speeds per drone at the last tick (RPM); they lag the command when ``motor_time_constant > 0``."""
+        self.rpm_command = [[0.0] * 4 for _ in range(n)]
+        """Rotor speeds the PID asked for at its last tick, per drone (RPM)."""
+        self._forces: list = [_ZERO] * n
+        self._torques: list = [_ZERO] * n
+        self._active: list[int] = []
+        self._touching = [False] * n
+        self._touched_now = [False] * n
+        self._touch_vel: list = [_ZERO] * n
+        self._latched_offset = np.zeros((n, 3))
+        self._plate_pos = [0.0, 0.0, 0.0]
+        self._state = SwarmState(
+            pos=self.pos,
+            quat=self.quat,
+            vel=self._reported_vel,
+            ang_vel=self.ang_vel,
+            pad_pos=self.pad_pos,
+            pad_vel=self.pad_vel,
+            contact=self.contact,
+        )
+        self._set_platform_time(0.0)
+        self._place_all(self.pad_pos[0] + np.array([0.0, 0.0, 1.0]))
+
+    # ------------------------------------------------------------------ Simulator API
+    def reset(self, env_ids: np.ndarray, rng: np.random.Generator) -> None:
+        ids = self._check_env_ids(env_ids)
+        if len(ids) == 0:
+            return
+        self.motion.sample(rng, ids)
+        self.time = 0.0
+        self._set_platform_time(0.0)
+        spawn = task.sample_spawn_positions(rng, np.array([self._plate_pos[2]]), self.task, self.pad_pos)[0]
+        self._place_all(spawn)
+
+    def step(self, velocity: np.ndarray) -> None:
+        u = np.asarray(velocity, dtype=float)
+        if u.shape != (1, self.num_drones, 3):
+            raise ValueError(f"velocity must have shape (1, {self.num_drones}, 3) m/s, got {u.shape}.")
+        targets = task.next_target_position(self.pos[0], u[0], self.task.dt).tolist()
+        commands = u[0].tolist()
+        self.contact[:] = task.CONTACT_NONE
+        self._touched_now = [False] * self.num_drones
+        for _ in range(self._ticks_per_action):
+            self._control_tick(targets, commands)
+            self._advance_tick()
+            self._read_state()
+        self._publish()
+
+    def state(self) -> SwarmState:
+        """The current state; its arrays are updated in place by later calls (copy to keep them)."""
+        return self._state
+
+    def land(self, landed: np.ndarray) -> None:
+        new = np.asarray(landed, dtype=bool).reshape(self.num_drones) & ~self.landed[0]
+        for i in np.flatnonzero(new).tolist():
+            dx, dy = (self.pos[0, i, :2] - self.pad_pos[0, i, :2]).tolist()
+            self._latched_offset[i] = (dx, dy, self.task.landed_height)
+            self.world.set_drone_mass(i, latched=True)
+            self.world.place_drone(i, self.pad_pos[0, i] + self._latched_offset[i])
+            self.landed[0, i] = True
+        if new.any():
+            self.controller.reset(np.flatnonzero(new).tolist())
+            self._refresh_active()
+            self._read_state()
+            self._publish()
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            p.disconnect(physicsClientId=self.client)
+
+    # ------------------------------------------------------------------ rehearsal extras
+    def place(self, env_id: int, drone_pos: np.ndarray) -> None:
+        """Put the drones at ``drone_pos`` ``(N, 3)`` m, at rest and level (z = ``landed_height`` sits on the floor).
+
+        Clears landings and stopped motors; the PID starts afresh.
+        """
+        self._check_env_ids(np.array([env_id]))
+        pos = np.asarray(drone_pos, dtype=float)
+        if pos.shape != (self.num_drones, 3) or not np.isfinite(pos).all():
+            raise ValueError(f"drone_pos must be a finite ({self.num_drones}, 3) array, got shape {pos.shape}.")
+        self._place_all(pos)
+
+    def stop_motors(self, stopped: np.ndarray) -> None:
+        """Set the rotor speed of drones where ``stopped`` ``(1, N)`` is True to zero: they fall until they
+        touch something, and ignore velocity commands until :meth:`place` or :meth:`reset`."""
+        mask = np.asarray(stopped, dtype=bool).reshape(self.num_drones)
+        self.motors_stopped[0] |= mask
+        self.controller.reset(np.flatnonzero(mask).tolist())
+        self._refresh_active()
+
+    # ------------------------------------------------------------------ internals
+    def _check_env_ids(self, env_ids: np.ndarray) -> np.ndarray:
+        ids = np.atleast_1d(np.asarray(env_ids)).astype(int)
+        if np.any(ids != 0):
+            raise ValueError(f"CrazyflieSwarm holds one environment (id 0); got env ids {ids.tolist()}.")
+        return ids
+
+    def _set_platform_time(self, t: float, move_latched: bool = False) -> None:
+        """Put the plate where it is at time ``t`` (s), and the drones latched to it with it."""
+        plate, vel = self.motion.state(np.array([t]))
+        self._plate_pos = plate[0].tolist()
+        self.pad_pos[0] = plate[0] + self.motion.pad_offsets
+        self.pad_vel[0] = vel[0]
+        self.world.move_platform(self._plate_pos)
+        if move_latched:
+            for i in np.flatnonzero(self.landed[0]).tolist():
+                self.world.place_drone(i, self.pad_pos[0, i] + self._latched_offset[i], keep_velocity=True)
+
+    def _place_all(self, pos: np.ndarray) -> None:
+        for i in range(self.num_drones):
+            if self.landed[0, i]:
+                self.world.set_drone_mass(i, latched=False)
+            self.world.place_drone(i, pos[i])
+        self.landed[:] = False
+        self.motors_stopped[:] = False
+        self.contact[:] = task.CONTACT_NONE
+        self._touching = [False] * self.num_drones
+        self._touched_now = [False] * self.num_drones
+        self.controller.reset()
+        hover = self.params.hover_rpm
+        self.rpm = [[hover] * 4 for _ in range(self.num_drones)]
+        self.rpm_command = [[hover] * 4 for _ in range(self.num_drones)]
+        self._refresh_active()
+        self._read_state()
+        self._publish()
+
+    def _refresh_active(self) -> None:
+        """Drones whose motors push: neither landed nor stopped. The others get no force at all."""
+        idle = self.landed[0] | self.motors_stopped[0]
+        self._active = np.flatnonzero(~idle).tolist()
+        for i in np.flatnonzero(idle).tolist():
+            self.rpm[i] = [0.0] * 4
+            self.rpm_command[i] = [0.0] * 4
+
+    def _control_tick(self, targets: list, commands: list) -> None:
+        """Run the PID and evaluate the forces that act during the next ``1 / control_hz`` seconds."""
+        cfg, params, pid = self.physics, self.params, self.controller
+        poses, vels = self._poses, self._vels
+        rots = [rotation_matrix(pose[1]) for pose in poses]
+        effective = self.rpm
+        if self._motor_decay > 0.0:
+            effective = [list(rpm) for rpm in self.rpm]
+        for i in self._active:
+            pos, (vel, ang_vel) = poses[i][0], vels[i]
+            self.rpm_command[i] = rpm = list(pid.update(i, pos, rots[i], vel, ang_vel, targets[i], commands[i]))
+            if self._motor_decay > 0.0:
+                effective[i] = self._lagged_motors(i, rpm)
+            else:
+                self.rpm[i] = rpm
+        if cfg.downwash:
+            thrusts = [params.kf * sum(w * w for w in rpm) for rpm in effective]
+        for i in self._active:
+            rot, pos, vel = rots[i], poses[i][0], vels[i][0]
+            fx = fy = fz = 0.0
+            if cfg.drag:
+                vel_body = (
+                    rot[0] * vel[0] + rot[3] * vel[1] + rot[6] * vel[2],
+                    rot[1] * vel[0] + rot[4] * vel[1] + rot[7] * vel[2],
+                    rot[2] * vel[0] + rot[5] * vel[1] + rot[8] * vel[2],
+                )
+                fx, fy, fz = drag_force(sum(effective[i]), vel_body, params)
+            if cfg.downwash:
+                push = 0.0
+                for j, other in enumerate(poses):
+                    if j != i:
+                        q = other[0]
+                        d2 = (q[0] - pos[0]) ** 2 + (q[1] - pos[1]) ** 2
+                        push += downwash_push(q[2] - pos[2], d2, thrusts[j], params)
+                # World (0, 0, push) in body axes is push times the third row of R.
+                fx, fy, fz = fx + rot[6] * push, fy + rot[7] * push, fz + rot[8] * push
+            gain = self._ground_effect(pos, rot) if cfg.ground_effect else _NO_GAIN
+            fz_motor, tx, ty, tz = motor_wrench(effective[i], params, gain)
+            self._forces[i] = (fx, fy, fz + fz_motor)
+            self._torques[i] = (tx, ty, tz)
+
+    def _lagged_motors(self, i: int, command: list[float]) -> list[float]:
+        """First-order motor lag over one tick: update drone ``i``'s rotor speeds, return their effective values.
+
+        With ``w(t) = c + (w0 - c) e^(-t / tau)`` the thrust ``k_f w^2`` averaged over the tick
+        ``T`` is ``k_f (c^2 + 2 c (w0 - c) m1 + (w0 - c)^2 m2)``, ``m1 = tau / T (1 - e^(-T / tau))``,
+        ``m2 = tau / (2 T) (1 - e^(-2 T / tau))``. The effective speed is the square root of that
+        mean square, so the held force equals the lagging motors' mean force exactly.
+        """
+        decay, m1, m2 = self._motor_decay, self._motor_m1, self._motor_m2
+        effective, now = [], []
+        for c, w0 in zip(command, self.rpm[i], strict=True):
+            gap = w0 - c
+            effective.append(math.sqrt(max(c * c + 2.0 * c * gap * m1 + gap * gap * m2, 0.0)))
+            now.append(c + gap * decay)
+        self.rpm[i] = now
+        return effective
+
+    def _ground_effect(self, pos: tuple, rot: tuple) -> tuple[float, ...]:
+        """Each rotor's thrust gain from its height above the floor, or above the plate when the drone is over it."""
+        px, py, pz = self._plate_pos
+        over_plate = abs(pos[0] - px) <= self._half_x and abs(pos[1] - py) <= self._half_y and pos[2] >= pz
+        base = pos[2] - (pz if over_plate else 0.0)
+        r20, r21, r22 = rot[6], rot[7], rot[8]
+        params = self.params
+        return tuple(ground_effect_gain(base + r20 * x + r21 * y + r22 * z, params) for x, y, z in self._rotors)
+
+    def _advance_tick(self) -> None:
+        """Apply the held forces and let PyBullet run one control period (``steps_per_tick`` physics steps)."""
+        cid, bodies = self.client, self.world.drones
+        if self.platform.is_moving:
+            self._set_platform_time(self.time + self.control_dt, move_latched=True)
+        apply_force, apply_torque, link_frame = p.applyExternalForce, p.applyExternalTorque, p.LINK_FRAME
+        forces, torques = self._forces, self._torques
+        for i in self._active:
+            body = bodies[i]
+            apply_force(body, -1, forces[i], _ORIGIN, link_frame, physicsClientId=cid)
+            apply_torque(body, -1, torques[i], link_frame, physicsClientId=cid)
+        p.stepSimulation(physicsClientId=cid)
+        self.time += self.control_dt
+        points = p.getContactPoints(physicsClientId=cid)
+        if points:
+            self._register_contacts(points)
+        elif True in self._touching:
+            self._touching = [False] * self.num_drones
+
+    def _register_contacts(self, points: tuple) -> None:
+        """Turn PyBullet contact points into contact codes and touchdown velocities."""
+        index, platform, pads = self.world.drone_index, self.world.platform, self.world.pad_links
+        contact = self.contact[0]
+        touching = [False] * self.num_drones
+        for point in points:
+            if point[8] > CONTACT_TOLERANCE:
+                continue
+            for me, other, other_link in ((point[1], point[2], point[4]), (point[2], point[1], point[3])):
+                i = index.get(me)
+                if i is None:
+                    continue
+                own = other == platform and other_link == pads[i]
+                code = task.CONTACT_OWN_PAD if own else task.CONTACT_OTHER
+                if code > contact[i]:
+                    contact[i] = code
+                touching[i] = True
+        for i, now in enumerate(touching):
+            if now and not self._touching[i] and not self._touched_now[i]:
+                self._touch_vel[i] = self._vels[i][0]  # velocity at the last control tick before the touch
+                self._touched_now[i] = True
+        self._touching = touching
+
+    def _read_state(self) -> None:
+        """Read every drone's pose and velocity from PyBullet (two calls per drone), as tuples."""
+        cid, bodies = self.client, self.world.drones
+        get_pose, get_vel = p.getBasePositionAndOrientation, p.getBaseVelocity
+        self._poses = [get_pose(body, physicsClientId=cid) for body in bodies]
+        self._vels = [get_vel(body, physicsClientId=cid) for body in bodies]
+
+    def _publish(self) -> None:
+        """Copy the working state into the arrays of :meth:`state` (one sign per attitude: w >= 0)."""
+        rows = []
+        for (pos, quat), (vel, ang_vel) in zip(self._poses, self._vels, strict=True):
+            if quat[3] < 0.0:
+                quat = (-quat[0], -quat[1], -quat[2], -quat[3])
+            rows.append((*pos, *quat, *vel, *ang_vel))
+        self._kinematics[0] = rows
+        if self.landed.any():
+            mask = self.landed[0]
+            self.vel[0, mask] = self.pad_vel[0, mask]
+            self.ang_vel[0, mask] = 0.0
+        self._reported_vel[:] = self.vel
+        if True in self._touched_now:
+            for i, touched in enumerate(self._touched_now):
+                if touched:
+                    self._reported_vel[0, i] = self._touch_vel[i]

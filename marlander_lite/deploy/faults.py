@@ -1,0 +1,121 @@
+"""Faults to rehearse: what goes wrong in a motion-capture lab, injected into the simulated one.
+
+=================  ==========================================================================
+``dropout``        the whole mocap stream stops (default 0.3 s): hover, then resume.
+``latency-spike``  frames arrive 0.3 s later than usual for a while (default 1 s): hover while
+                   none arrive, then fly on late data.
+``occlusion``      one drone's markers are hidden (default 1 s): hover, then land every drone
+                   (the hidden one lands on its firmware's dead-reckoned estimate).
+``nan-pose``       one drone's pose comes as NaN (default 0.2 s): rejected, hover, resume.
+``link-loss``      one drone's radio link dies: it is left to its firmware (level out after
+                   0.5 s, motors off after 2 s, it drops), every other drone lands.
+``geofence-breach`` one drone's policy output is replaced by full speed towards the nearest
+                   wall: the soft fence stops it (hover), then every drone lands.
+=================  ==========================================================================
+
+A :class:`FaultInjector` is a :class:`marlander_lite.deploy.mission.Mission` hook: it starts
+its fault ``start_s`` seconds after the policy took over and records a ``fault_injected`` event.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Literal, get_args
+
+import numpy as np
+
+from marlander_lite.deploy.runner import Policy
+
+if TYPE_CHECKING:
+    from marlander_lite.deploy.mission import Mission
+    from marlander_lite.deploy.pose_sources import SimulatedPoseSource
+    from marlander_lite.deploy.sim_world import SimulatedWorld
+
+FaultKind = Literal["dropout", "latency-spike", "occlusion", "nan-pose", "link-loss", "geofence-breach"]
+FAULT_KINDS: tuple[str, ...] = get_args(FaultKind)
+DEFAULT_DURATION_S = {"dropout": 0.3, "latency-spike": 1.0, "occlusion": 1.0, "nan-pose": 0.2}
+LATENCY_SPIKE_S = 0.3
+"""Extra delay of frames during a latency spike (s)."""
+
+
+@dataclass(frozen=True)
+class FaultSpec:
+    """One fault: what, when (after the policy starts), how long, to which drone."""
+
+    kind: FaultKind
+    start_s: float = 1.0
+    """Seconds after the policy took over (s)."""
+    duration_s: float | None = None
+    """How long it lasts (s); None: the kind's default (link loss and geofence breach last)."""
+    drone: int = 0
+    """Index of the drone concerned (for per-drone faults)."""
+
+    def __post_init__(self) -> None:
+        if self.kind not in FAULT_KINDS:
+            raise ValueError(f"Unknown fault {self.kind!r}; allowed: {', '.join(FAULT_KINDS)}.")
+        if self.start_s < 0 or (self.duration_s is not None and self.duration_s <= 0):
+            raise ValueError("A fault needs start_s >= 0 and duration_s > 0.")
+
+    @property
+    def duration(self) -> float:
+        return self.duration_s if self.duration_s is not None else DEFAULT_DURATION_S.get(self.kind, np.inf)
+
+
+class RoguePolicy:
+    """Wraps a policy; drone ``drone``'s action becomes ``action`` (a runaway policy)."""
+
+    def __init__(self, policy: Policy, drone: int, action: np.ndarray) -> None:
+        self.policy, self.drone, self.rogue = policy, drone, np.asarray(action, dtype=float)
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        out = np.array(self.policy.act(obs), dtype=float)
+        out.reshape(-1, 3)[self.drone] = self.rogue
+        return out
+
+
+class FaultInjector:
+    """Applies one :class:`FaultSpec` to a simulated lab, as a mission hook ``injector(mission, t)``."""
+
+    def __init__(self, spec: FaultSpec, world: SimulatedWorld, source: SimulatedPoseSource) -> None:
+        if spec.drone >= world.n:
+            raise ValueError(f"Fault drone index {spec.drone} does not exist; the lab has {world.n} drones.")
+        self.spec, self.world, self.source = spec, world, source
+        self.started_at: float | None = None
+        """Mission time the fault started (s)."""
+
+    def __call__(self, mission: Mission, t: float) -> None:
+        spec = self.spec
+        if self.started_at is not None or mission.policy_start is None or t < mission.policy_start + spec.start_s:
+            return
+        if mission.mode != "policy":
+            return
+        self.started_at = t
+        until = self.world.time + spec.duration
+        name = mission.names[spec.drone]
+        faults = self.source.faults
+        if spec.kind == "dropout":
+            faults.dropout_until = until
+            what = f"motion-capture stream stops for {spec.duration:.2f} s"
+        elif spec.kind == "latency-spike":
+            faults.extra_latency_s, faults.latency_until = LATENCY_SPIKE_S, until
+            what = f"frames {LATENCY_SPIKE_S:.2f} s late for {spec.duration:.2f} s"
+        elif spec.kind == "occlusion":
+            faults.occluded_until[name] = until
+            what = f"{name} occluded for {spec.duration:.2f} s"
+        elif spec.kind == "nan-pose":
+            faults.nan_until[name] = until
+            what = f"{name}'s pose is NaN for {spec.duration:.2f} s"
+        elif spec.kind == "link-loss":
+            uri = mission.lab.drones[spec.drone].uri
+            self.world.factory.crazyflies[uri].fail_link("injected fault: radio link lost")
+            what = f"{name}'s radio link is lost"
+        else:  # geofence-breach
+            tracks = mission.estimator.tracks
+            pos = tracks.pose[tracks.index[name], :2]
+            low, high = mission.lab.geofence.bounds(soft=True)
+            centre = (np.array(low[:2]) + np.array(high[:2])) / 2
+            away = pos - centre if np.linalg.norm(pos - centre) > 1e-6 else np.array([1.0, 0.0])
+            action = np.array([*(away / np.abs(away).max()), 0.0])
+            mission.runner.policy = RoguePolicy(mission.runner.policy, spec.drone, action)
+            what = f"{name}'s policy output replaced by {np.round(action, 2).tolist()} (full speed outwards)"
+        mission.event("fault_injected", f"{spec.kind}: {what}", spec.drone)

@@ -1,0 +1,181 @@
+"""Flight logs: one JSON line per loop tick, appended and flushed as it happens.
+
+A log file starts with a ``header`` record (config, policy contract, drone and pad names), then
+holds one ``tick`` record per loop tick, and ends with a ``summary`` record if the flight ended
+normally. Each line is written and flushed before the next tick starts, so a crash or Ctrl-C
+loses nothing that was already logged; :func:`read_flight_log` reads such a file and skips a
+last line cut short by a crash. Non-finite numbers are written as ``NaN``/``Infinity``, which
+Python's ``json`` (and pandas) read back.
+
+A tick record::
+
+    {"type": "tick", "tick": k, "t": s since start, "mode": ..., "phase": [per drone],
+     "poses": {body: [x, y, z, qx, qy, qz, qw] or null (not in this tick's frames)},
+     "age": {body: s since its last accepted pose},
+     "est": {"pos", "quat", "vel", "ang_vel", "pad_pos", "pad_vel", "goal"},   # per drone lists
+     "obs": N x 13 or null, "action": 3N or null,
+     "cmd": [per drone: {"kind": "velocity"|"hover"|"takeoff"|"land"|"stop"|"none", ...}],
+     "events": [{"t", "kind", "message", "drone"}], "compute_ms": time spent in the tick}
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+
+FORMAT = "marlander_lite.flight_log"
+VERSION = 1
+ESTIMATES = ("pos", "quat", "vel", "ang_vel", "pad_pos", "pad_vel", "goal")
+"""Fields of the estimate logged per tick, each per drone."""
+
+
+def rounded(a: Any, decimals: int = 6) -> Any:
+    """Arrays and numbers as JSON-ready lists, rounded to ``decimals`` (keeps the log small)."""
+    return np.round(np.asarray(a, dtype=float), decimals).tolist()
+
+
+def tick_record(
+    *,
+    tick: int,
+    t: float,
+    mode: str,
+    phase: list[str],
+    frames: list[Any],
+    ages: dict[str, float],
+    est: Any,
+    obs: np.ndarray | None,
+    action: np.ndarray | None,
+    commands: list[dict[str, Any]],
+    events: list[dict[str, Any]],
+    compute_ms: float,
+) -> dict[str, Any]:
+    """The record of one loop tick (see the module docstring); ``frames`` are this tick's ``PoseFrame`` s,
+    ``est`` its ``SwarmEstimate``, ``ages`` every tracked body's age (s)."""
+    poses: dict[str, Any] = dict.fromkeys(ages)
+    for frame in frames:
+        for name, pose in frame.bodies.items():
+            if name in poses:
+                poses[name] = rounded(pose)
+    return {
+        "type": "tick",
+        "tick": tick,
+        "t": round(t, 6),
+        "mode": mode,
+        "phase": list(phase),
+        "poses": poses,
+        "age": {k: round(v, 4) for k, v in ages.items()},
+        "est": {key: rounded(getattr(est, key)) for key in ESTIMATES},
+        "obs": None if obs is None else rounded(obs),
+        "action": None if action is None else rounded(action),
+        "cmd": commands,
+        "events": events,
+        "compute_ms": round(compute_ms, 4),
+    }
+
+
+def jsonable(value: Any) -> Any:
+    """``value`` with numpy scalars turned into Python numbers (for ``json``)."""
+    if isinstance(value, dict):
+        return {k: jsonable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [jsonable(v) for v in value]
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+class FlightLogWriter:
+    """Appends records to a JSON-lines file, flushing after every record.
+
+    Args:
+        path: the log file (its folder is created).
+        header: what to record about the flight (config, policy, ...).
+        fsync: also ask the OS to write to disk every tick (survives a power cut; slower).
+        overwrite: replace an existing file; otherwise an existing file is refused (a flight log
+            is never overwritten by accident).
+    """
+
+    def __init__(self, path: str | Path, header: dict[str, Any], fsync: bool = False, overwrite: bool = False) -> None:
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.fsync = fsync
+        if self.path.exists() and not overwrite:
+            raise FileExistsError(f"The flight log {self.path} exists already; choose another path.")
+        self._file: IO[str] | None = self.path.open("w", encoding="utf-8")
+        self.records = 0
+        self.write({"type": "header", "format": FORMAT, "version": VERSION, **header})
+
+    def write(self, record: dict[str, Any]) -> None:
+        """Append one record and flush it."""
+        if self._file is None:
+            raise ValueError(f"The flight log {self.path} is closed.")
+        self._file.write(json.dumps(record, separators=(",", ":")) + "\n")
+        self._file.flush()
+        if self.fsync:
+            os.fsync(self._file.fileno())
+        self.records += 1
+
+    def close(self) -> None:
+        if self._file is not None:
+            self._file.close()
+            self._file = None
+
+
+@dataclass
+class FlightLog:
+    """A flight log read back."""
+
+    header: dict[str, Any]
+    ticks: list[dict[str, Any]]
+    summary: dict[str, Any] | None
+    truncated: bool = False
+    """The last line was cut short (the program died while writing it) and was skipped."""
+    events: list[dict[str, Any]] = field(default_factory=list)
+
+    @property
+    def drones(self) -> list[str]:
+        return list(self.header["drones"])
+
+    def times(self) -> np.ndarray:
+        """Tick times ``(T,)`` s."""
+        return np.array([t["t"] for t in self.ticks])
+
+    def estimates(self, key: str) -> np.ndarray:
+        """An estimate over time, e.g. ``"pos"`` -> ``(T, N, 3)``."""
+        return np.array([t["est"][key] for t in self.ticks], dtype=float)
+
+
+def read_flight_log(path: str | Path) -> FlightLog:
+    """Read a flight log; a last line cut short by a crash is skipped with a warning."""
+    path = Path(path)
+    lines = path.read_text(encoding="utf-8").splitlines()
+    header, ticks, summary, truncated = None, [], None, False
+    for number, line in enumerate(lines, start=1):
+        try:
+            record = json.loads(line)
+        except json.JSONDecodeError:
+            if number == len(lines):
+                truncated = True
+                message = f"{path}: the last line is incomplete (the flight ended abruptly); skipped."
+                warnings.warn(message, stacklevel=2)
+                break
+            raise ValueError(f"{path}:{number} is not a JSON record; the file is damaged.") from None
+        kind = record.get("type")
+        if kind == "header":
+            if header is not None:
+                raise ValueError(f"{path}:{number} starts a second flight; a log holds one flight.")
+            header = record
+        elif kind == "tick":
+            ticks.append(record)
+        elif kind == "summary":
+            summary = record
+    if header is None or header.get("format") != FORMAT:
+        raise ValueError(f"{path} is not a marlander_lite flight log (no header record).")
+    events = [e for t in ticks for e in t.get("events", [])]
+    return FlightLog(header=header, ticks=ticks, summary=summary, truncated=truncated, events=events)

@@ -1,0 +1,257 @@
+"""Where poses come from: a motion-capture system, or the simulated lab, behind one interface.
+
+A :class:`PoseSource` hands the control loop every frame that arrived since it last asked:
+``read(now) -> list[PoseFrame]``, oldest first, possibly empty. A frame maps rigid-body names to
+poses ``[x, y, z, qx, qy, qz, qw]``: world frame, metres, quaternion **scalar-last** like the
+rest of marlander_lite. motioncapture returns quaternions scalar-first (``.w .x .y .z``);
+:func:`wxyz_to_xyzw` is the single place where that order is changed. A body the cameras do
+not see this frame (occluded) is absent from the frame.
+
+* :class:`MotionCaptureSource` wraps ``motioncapture`` (vicon, optitrack, qualisys, vrpn, mock).
+* :class:`SimulatedPoseSource` samples a simulated world with noise, latency, lost frames,
+  occlusions and the faults of :mod:`marlander_lite.deploy.faults`.
+"""
+
+from __future__ import annotations
+
+import collections
+import json
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+
+from marlander_lite.rotations import quat_normalize
+
+WORKER = Path(__file__).with_name("mocap_worker.py")
+
+
+@dataclass
+class PoseFrame:
+    """One motion-capture frame."""
+
+    t: float
+    """When the frame reached the host (s, on the loop's clock)."""
+    bodies: dict[str, np.ndarray]
+    """Rigid-body name -> ``(7,)`` pose ``[x, y, z, qx, qy, qz, qw]`` (m, unit quaternion, world frame)."""
+
+
+def wxyz_to_xyzw(q: np.ndarray) -> np.ndarray:
+    """motioncapture's quaternion order ``(w, x, y, z)`` -> marlander_lite's ``(x, y, z, w)``, ``(..., 4)``."""
+    q = np.asarray(q, dtype=float)
+    return np.concatenate((q[..., 1:4], q[..., 0:1]), axis=-1)
+
+
+class PoseSource(Protocol):
+    """What the control loop needs from a source of poses."""
+
+    def read(self, now: float) -> list[PoseFrame]:
+        """Frames that arrived since the last call, oldest first (``now`` is the loop's clock, s)."""
+
+    def close(self) -> None:
+        """Stop receiving."""
+
+
+class MotionCaptureSource:
+    """A motion-capture system through ``motioncapture``, read by a child process.
+
+    ``motioncapture.connect`` blocks while no server answers (vicon) and holds Python's GIL
+    while it does, so a thread cannot time it out: the connection runs in
+    ``mocap_worker.py``'s process, a reader thread here collects its frames, and a connection
+    that does not answer within ``timeout_s`` is killed with a :class:`TimeoutError`.
+    Frame times are ``time.monotonic()`` at arrival; use :class:`RealClock` in the loop.
+
+    Args:
+        kind: ``vicon``, ``optitrack``, ``qualisys``, ``vrpn`` or ``mock``.
+        cfg: ``motioncapture.connect``'s configuration, every value a string (e.g. ``hostname``).
+        timeout_s: longest wait for the connection (s).
+        max_buffer: frames kept when the loop falls behind (older ones are dropped).
+    """
+
+    def __init__(self, kind: str, cfg: dict[str, str], timeout_s: float = 5.0, max_buffer: int = 1000) -> None:
+        self.kind = kind
+        self._frames: collections.deque[PoseFrame] = collections.deque(maxlen=max_buffer)
+        self._lock = threading.Lock()
+        self._status: dict[str, str] = {}
+        self._answered = threading.Event()
+        self._connected = False
+        self.error: str | None = None
+        self._proc = subprocess.Popen(
+            [sys.executable, "-u", str(WORKER), kind, json.dumps({k: str(v) for k, v in cfg.items()})],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.DEVNULL,
+            text=True,
+        )
+        self._reader = threading.Thread(target=self._read_worker, name=f"mocap-{kind}", daemon=True)
+        self._reader.start()
+        answered = self._answered.wait(timeout_s)
+        if not self._connected:
+            self.close()
+            if answered:
+                raise ConnectionError(f"motioncapture could not connect to {kind!r} ({cfg}): {self.error}")
+            raise TimeoutError(
+                f"No answer from the {kind!r} motion-capture server ({cfg}) within {timeout_s} s. Is the server "
+                "running and reachable, and is the hostname right?"
+            )
+
+    def _read_worker(self) -> None:
+        assert self._proc.stdout is not None
+        for line in self._proc.stdout:
+            msg = json.loads(line)
+            if "status" in msg:
+                self._connected = msg["status"] == "connected"
+                self.error = None if self._connected else msg.get("message", "unknown error")
+                self._answered.set()
+                if not self._connected:
+                    break
+                continue
+            bodies = {}
+            for name, v in msg["b"].items():
+                pose = np.empty(7)
+                pose[:3] = v[:3]
+                pose[3:] = wxyz_to_xyzw(np.asarray(v[3:7]))
+                bodies[name] = pose
+            with self._lock:
+                self._frames.append(PoseFrame(t=float(msg["t"]), bodies=bodies))
+        if not self._answered.is_set():  # the worker died without a word
+            self.error = f"the worker process exited with code {self._proc.wait()}"
+            self._answered.set()
+
+    @property
+    def alive(self) -> bool:
+        """Whether the worker process is still running."""
+        return self._proc.poll() is None
+
+    def read(self, now: float) -> list[PoseFrame]:
+        with self._lock:
+            frames = list(self._frames)
+            self._frames.clear()
+        return frames
+
+    def close(self) -> None:
+        if self._proc.poll() is None:
+            self._proc.kill()
+        self._proc.wait(timeout=5)
+        if self._proc.stdout is not None:
+            self._proc.stdout.close()
+
+
+# ----------------------------------------------------------------------------- simulation
+
+
+class TruePoses(Protocol):
+    """A simulated world as a pose source sees it."""
+
+    time: float
+
+    def true_poses(self) -> dict[str, np.ndarray]:
+        """Rigid-body name -> true ``(7,)`` pose ``[x, y, z, qx, qy, qz, qw]`` now."""
+
+
+@dataclass
+class MocapFaults:
+    """Faults a :class:`SimulatedPoseSource` applies while they last (times on the world's clock, s)."""
+
+    dropout_until: float = -np.inf
+    """No frame at all arrives for frames captured before this time."""
+    extra_latency_s: float = 0.0
+    """Added delay for frames captured before ``latency_until``."""
+    latency_until: float = -np.inf
+    occluded_until: dict[str, float] = field(default_factory=dict)
+    """Body -> time until which it is missing from every frame."""
+    nan_until: dict[str, float] = field(default_factory=dict)
+    """Body -> time until which its pose is NaN."""
+
+
+class SimulatedPoseSource:
+    """Samples a simulated world like a motion-capture system: one frame per call, noisy and late.
+
+    Args:
+        world: anything with ``time`` and ``true_poses()`` (:class:`marlander_lite.deploy.sim_world.SimulatedWorld`).
+        pos_noise_std: Gaussian position noise (m).
+        quat_noise_std: Gaussian noise per quaternion component before renormalising.
+        latency_s: delay from capture to arrival (s); frames arrive at the first read at or after it.
+        drop_rate: probability that a whole frame is lost.
+        occlusion_rate: probability that a body is missing from a frame.
+        seed: seed of the noise.
+    """
+
+    def __init__(
+        self,
+        world: TruePoses,
+        pos_noise_std: float = 0.001,
+        quat_noise_std: float = 0.002,
+        latency_s: float = 0.01,
+        drop_rate: float = 0.0,
+        occlusion_rate: float = 0.0,
+        seed: int | None = 0,
+    ) -> None:
+        self.world = world
+        self.pos_noise_std, self.quat_noise_std = pos_noise_std, quat_noise_std
+        self.latency_s, self.drop_rate, self.occlusion_rate = latency_s, drop_rate, occlusion_rate
+        self.rng = np.random.default_rng(seed)
+        self.faults = MocapFaults()
+        self._queue: collections.deque[tuple[float, dict[str, np.ndarray]]] = collections.deque()
+        self._last_arrival = -np.inf
+
+    def _capture(self, t: float) -> dict[str, np.ndarray] | None:
+        f = self.faults
+        if t < f.dropout_until or (self.drop_rate and self.rng.random() < self.drop_rate):
+            return None
+        bodies = {}
+        for name, pose in self.world.true_poses().items():
+            if f.occluded_until.get(name, -np.inf) > t:
+                continue
+            if self.occlusion_rate and self.rng.random() < self.occlusion_rate:
+                continue
+            noisy = np.array(pose, dtype=float)
+            noisy[:3] += self.rng.normal(0.0, self.pos_noise_std, 3) if self.pos_noise_std else 0.0
+            if self.quat_noise_std:
+                noisy[3:] = quat_normalize(noisy[3:] + self.rng.normal(0.0, self.quat_noise_std, 4))
+            if f.nan_until.get(name, -np.inf) > t:
+                noisy[:] = np.nan
+            bodies[name] = noisy
+        return bodies
+
+    def read(self, now: float) -> list[PoseFrame]:
+        t = self.world.time
+        bodies = self._capture(t)
+        if bodies is not None:
+            extra = self.faults.extra_latency_s if t < self.faults.latency_until else 0.0
+            self._queue.append((t + self.latency_s + extra, bodies))
+        frames = []
+        while self._queue and self._queue[0][0] <= now + 1e-9:
+            arrival, bodies = self._queue.popleft()
+            # Frames arrive in order: one stuck behind a late one reaches the host with it.
+            self._last_arrival = max(arrival, self._last_arrival)
+            frames.append(PoseFrame(t=self._last_arrival, bodies=bodies))
+        return frames
+
+    def close(self) -> None:
+        self._queue.clear()
+
+
+class Clock(Protocol):
+    """Time for the loop: :class:`marlander_lite.deploy.pose_sources.RealClock` or a simulated world."""
+
+    def now(self) -> float: ...
+
+    def sleep_until(self, t: float) -> None: ...
+
+
+class RealClock:
+    """Wall-clock time for hardware: ``time.monotonic`` (the clock of motion-capture frames)."""
+
+    def now(self) -> float:
+        return time.monotonic()
+
+    def sleep_until(self, t: float) -> None:
+        """Sleep until ``t`` (s); returns at once if it has passed."""
+        delay = t - time.monotonic()
+        if delay > 0:
+            time.sleep(delay)

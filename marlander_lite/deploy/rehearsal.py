@@ -1,0 +1,196 @@
+"""A deployment rehearsed end to end in simulation: the hardware code path against a simulated lab.
+
+:func:`rehearse` builds the simulated lab (:class:`SimulatedWorld` with the PyBullet Crazyflie
+swarm or the point-mass swarm), a :class:`SimulatedPoseSource` reading it, the real
+:class:`CrazyflieLink` (cflib ``Swarm`` on virtual Crazyflies), optionally a fault, and runs the
+same :class:`Mission` as ``marlander deploy`` on hardware. Afterwards the world runs a few more
+seconds with no commands (so a drone left to its firmware comes down), and the result says
+where every drone ended up, checked against the simulator's ground truth.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from marlander_lite.deploy.config import LabConfig
+from marlander_lite.deploy.faults import FaultInjector, FaultSpec
+from marlander_lite.deploy.flight_log import FlightLogWriter
+from marlander_lite.deploy.link import CrazyflieLink
+from marlander_lite.deploy.mission import Mission
+from marlander_lite.deploy.pose_sources import SimulatedPoseSource
+from marlander_lite.deploy.results import MissionResult
+from marlander_lite.deploy.runner import Policy
+from marlander_lite.deploy.sim_world import SimulatedWorld, make_simulator
+from marlander_lite.policy_file import load_policy
+
+
+@dataclass
+class RehearsalResult:
+    """A rehearsal's mission result plus the simulator's ground truth at the end."""
+
+    mission: MissionResult
+    fault: str | None
+    simulator: str
+    final_positions: np.ndarray
+    """True drone positions at the end ``(N, 3)`` m."""
+    final_speeds: np.ndarray
+    """True drone speeds at the end ``(N,)`` m/s."""
+    motors_on: np.ndarray
+    """Whether each drone's motors still run ``(N,)``."""
+    pad_positions: np.ndarray
+    """True pad centres at the end ``(N, 3)`` m."""
+    inside_fence: np.ndarray
+    """Each drone inside the hard geofence ``(N,)``."""
+    riding: np.ndarray
+    """Each drone resting with its motors off on its own pad (it moves with a moving platform) ``(N,)``."""
+    min_separation: float
+    """Smallest distance between two drones during the flight (m)."""
+    firmware_events: list[tuple[str, float, str, str]] = field(default_factory=list)
+    """(drone, time, kind, message) from the virtual firmwares."""
+
+    @property
+    def at_rest(self) -> np.ndarray:
+        """Motors off and still, or riding its pad ``(N,)``: down on a surface."""
+        return ~self.motors_on & ((self.final_speeds < 0.05) | self.riding)
+
+    @property
+    def safe(self) -> bool:
+        """Every drone inside the fence, and either down at rest or hovering (motors on, still)."""
+        hovering = self.motors_on & (self.final_speeds < 0.2)
+        return bool(self.inside_fence.all() and (self.at_rest | hovering).all())
+
+    def summary(self) -> str:
+        """A few human-readable lines."""
+        m = self.mission
+        lines = [
+            f"simulator {self.simulator}, fault {self.fault or 'none'}: armed={m.armed}, on pad={m.on_pad}, "
+            f"phases={m.phases}, safe={self.safe}",
+            f"  landing error {np.round(np.array(m.landing_error) * 100, 2).tolist()} cm, "
+            f"landing time {np.round(m.landing_time, 2).tolist()} s, min separation {self.min_separation:.2f} m",
+            f"  loop work per tick: median {m.loop_ms_median:.3f} ms, p95 {m.loop_ms_p95:.3f} ms, "
+            f"max {m.loop_ms_max:.2f} ms over {m.ticks} ticks ({m.overruns} over the period)",
+        ]
+        lines += [f"  {e.t:7.2f} s  {e.kind:16s} {e.message}" for e in m.events]
+        after = [(t, d, msg) for d, t, kind, msg in self.firmware_events if kind == "watchdog" and t > m.duration_s]
+        lines += [f"  {t:7.2f} s  {'firmware':16s} {d} firmware: {msg} (after the loop ended)" for t, d, msg in after]
+        return "\n".join(lines)
+
+
+def flight_header(lab: LabConfig, policy: Policy, **extra: Any) -> dict[str, Any]:
+    """The header record of a flight log."""
+    contract = getattr(policy, "contract", None)
+    return {
+        "started": datetime.datetime.now(datetime.timezone.utc).isoformat(),
+        "drones": lab.drone_names,
+        "pads": [d.pad for d in lab.drones],
+        "pad_bodies": [p.body for p in lab.drone_pads()],
+        "loop_hz": lab.rates.loop_hz,
+        "policy_hz": lab.rates.policy_hz,
+        "config": dataclasses.asdict(lab),
+        "policy": None if contract is None else dataclasses.asdict(contract),
+        **extra,
+    }
+
+
+def rehearse(
+    lab: LabConfig,
+    policy: Policy | str | Path,
+    *,
+    simulator: str | None = None,
+    fault: FaultSpec | None = None,
+    seed: int | None = None,
+    log_path: str | Path | None = None,
+    settle_s: float = 3.0,
+) -> RehearsalResult:
+    """Fly the lab's mission in simulation and report how it ended.
+
+    Args:
+        lab: the lab config (its ``simulation`` section sets the platform, noise and seed).
+        policy: a policy file (loaded and checked against ``lab.task_config()``) or a policy object.
+        simulator: ``pybullet`` or ``pointmass``; default: ``lab.simulation.simulator``.
+        fault: a fault to inject, or None.
+        seed: overrides ``lab.simulation.seed``.
+        log_path: where to write the flight log (None: no log).
+        settle_s: simulated seconds to run after the mission with no commands.
+    """
+    if isinstance(policy, str | Path):
+        policy = load_policy(policy, lab.task_config())
+    sim_cfg = lab.simulation
+    seed = sim_cfg.seed if seed is None else seed
+    kind = simulator or sim_cfg.simulator
+    world = SimulatedWorld(lab, make_simulator(lab, kind), seed=seed)
+    source = SimulatedPoseSource(
+        world,
+        pos_noise_std=sim_cfg.pos_noise_std,
+        quat_noise_std=sim_cfg.quat_noise_std,
+        latency_s=sim_cfg.latency_s,
+        drop_rate=sim_cfg.drop_rate,
+        occlusion_rate=sim_cfg.occlusion_rate,
+        seed=seed,
+    )
+    hooks: list[Any] = [_FirmwareEvents(world), _TimeLimit(sim_cfg.max_time_s)]
+    if fault is not None:
+        hooks.append(FaultInjector(fault, world, source))
+    log = None
+    if log_path is not None:
+        header = flight_header(
+            lab, policy, source="simulation", simulator=kind, seed=seed, fault=None if fault is None else fault.kind
+        )
+        log = FlightLogWriter(log_path, header, overwrite=True)
+    link = CrazyflieLink([d.uri for d in lab.drones], lab.crazyflie, factory=world.factory)
+    try:
+        link.open()
+        result = Mission(lab, policy, source, link, clock=world, log=log, hooks=hooks).run()
+        world.sleep_until(world.time + settle_s)
+    finally:
+        link.close()
+        world.close()
+    pos = world.drone_positions()
+    return RehearsalResult(
+        mission=result,
+        fault=None if fault is None else fault.kind,
+        simulator=kind,
+        final_positions=pos,
+        final_speeds=world.drone_speeds(),
+        motors_on=world.motors_on.copy(),
+        pad_positions=world.pad_positions(),
+        inside_fence=np.array([lab.geofence.contains(p) for p in pos]),
+        riding=world.pad_landed.copy(),
+        min_separation=world.min_separation,
+        firmware_events=[(fw.name, t, k, m) for fw in world.firmwares.values() for t, k, m in fw.events],
+    )
+
+
+class _FirmwareEvents:
+    """Mission hook: copies the virtual firmwares' watchdog and refusal events into the flight log."""
+
+    def __init__(self, world: SimulatedWorld) -> None:
+        self.world = world
+        self.seen = {uri: 0 for uri in world.firmwares}
+
+    def __call__(self, mission: Mission, t: float) -> None:
+        for i, (uri, fw) in enumerate(self.world.firmwares.items()):
+            for _, kind, message in fw.events[self.seen[uri] :]:
+                if kind in ("watchdog", "ignored", "refused", "unsupported", "locked"):
+                    mission.event("firmware", f"{fw.name} firmware: {message}", i)
+            self.seen[uri] = len(fw.events)
+
+
+class _TimeLimit:
+    """Mission hook: lands every drone at the simulated time limit, stops the motors 20 s later."""
+
+    def __init__(self, max_time_s: float) -> None:
+        self.max_time_s, self.landing = max_time_s, False
+
+    def __call__(self, mission: Mission, t: float) -> None:
+        if t > self.max_time_s + 20.0:
+            mission.request_kill("simulated time limit + 20 s")
+        elif t > self.max_time_s and not self.landing:
+            self.landing = True
+            mission.request_land("simulated time limit")

@@ -1,0 +1,165 @@
+"""Training presets: every hyperparameter of a PPO run in one typed dataclass.
+
+``PRESETS`` maps a name to a :class:`TrainConfig`; ``marlander train --preset NAME`` uses it and
+saves the resolved config beside the run. The paper (Sec. III-F) trained PPO for 20 M steps on
+36 cores + 1 GPU and publishes neither its PPO hyperparameters nor its reward constants; the
+values below are ours and each preset's docstring says why.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any, Literal, get_args
+
+from marlander_lite.make import SIMULATORS
+from marlander_lite.platforms import PLATFORM_KINDS
+
+Activation = Literal["relu", "tanh"]
+Schedule = Literal["constant", "linear"]
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """A complete PPO training run."""
+
+    simulator: str = "pointmass"
+    """Which simulator to train in: ``pointmass`` or ``crazyflie``."""
+    num_drones: int = 2
+    """Drones per swarm (the policy is centralised over them, as in the paper)."""
+    platform: str = "static-floor"
+    """Platform motion during training (see ``marlander_lite.platforms``)."""
+    platform_speed: float | tuple[float, float] | None = None
+    """Tool speed of a moving platform (m/s); a (low, high) pair draws it per episode."""
+    sensing: str = "perfect"
+    """``perfect`` or ``vicon`` (motion-capture noise and latency on observations)."""
+    task: dict[str, Any] = field(default_factory=dict)
+    """Overrides of :class:`~marlander_lite.task.TaskConfig` fields."""
+    dynamics: dict[str, float] = field(default_factory=dict)
+    """Point-mass only: fields of :class:`~marlander_lite.pointmass.simulator.PointMassParams` (e.g. randomization)."""
+    total_steps: int = 3_000_000
+    """Environment steps (one step = one action for the whole swarm)."""
+    num_envs: int = 256
+    """Swarms simulated in parallel."""
+    n_steps: int = 64
+    """Steps per env per rollout; the rollout holds num_envs * n_steps samples."""
+    batch_size: int = 4096
+    """Minibatch size of the PPO update."""
+    n_epochs: int = 5
+    """Passes over each rollout."""
+    learning_rate: float = 3e-4
+    """Adam step size (at the start, when the schedule is linear)."""
+    lr_schedule: Schedule = "constant"
+    """``constant`` or ``linear`` decay to zero."""
+    gamma: float = 0.99
+    """Discount factor."""
+    gae_lambda: float = 0.95
+    """GAE lambda."""
+    clip_range: float = 0.2
+    """PPO ratio clipping."""
+    ent_coef: float = 0.0
+    """Entropy bonus."""
+    vf_coef: float = 0.5
+    """Value-loss weight."""
+    max_grad_norm: float = 0.5
+    """Gradient clipping."""
+    target_kl: float | None = None
+    """Stop an update's epochs early beyond this KL (None: never)."""
+    log_std_init: float = -1.0
+    """Initial log standard deviation of the Gaussian actions: exp(-1) = 0.37 of max_speed."""
+    net_arch: tuple[int, ...] = (128, 128)
+    """Hidden layers of the actor and, separately, of the critic."""
+    activation: Activation = "relu"
+    """Hidden activation (the paper: ReLU)."""
+    normalize_observations: bool = True
+    """Standardise observations with running statistics (SB3 VecNormalize); exported with the policy."""
+    normalize_rewards: bool = True
+    """Scale rewards by a running estimate of the return's spread."""
+    seed: int = 0
+    """Seeds the environments, the network initialisation and the sampling."""
+    init_from: str | None = None
+    """A run directory to continue from (fine-tuning): its model and normaliser are loaded."""
+    torch_threads: int = 2
+    """CPU threads for torch."""
+    checkpoint_every: int = 1_000_000
+    """Save a checkpoint every this many steps (0: only at the end)."""
+
+    def __post_init__(self) -> None:
+        problems = []
+        if self.simulator not in SIMULATORS:
+            problems.append(f"simulator must be one of {SIMULATORS}, got {self.simulator!r}")
+        if self.platform not in PLATFORM_KINDS:
+            problems.append(f"platform must be one of {PLATFORM_KINDS}, got {self.platform!r}")
+        if self.sensing not in ("perfect", "vicon"):
+            problems.append(f"sensing must be 'perfect' or 'vicon', got {self.sensing!r}")
+        if self.activation not in get_args(Activation):
+            problems.append(f"activation must be one of {get_args(Activation)}, got {self.activation!r}")
+        if self.lr_schedule not in get_args(Schedule):
+            problems.append(f"lr_schedule must be one of {get_args(Schedule)}, got {self.lr_schedule!r}")
+        for name in ("total_steps", "num_envs", "n_steps", "batch_size", "n_epochs", "num_drones", "torch_threads"):
+            if not isinstance(getattr(self, name), int) or getattr(self, name) < 1:
+                problems.append(f"{name} must be an integer >= 1, got {getattr(self, name)!r}")
+        if self.dynamics and self.simulator != "pointmass":
+            problems.append("dynamics options apply to the point-mass simulator only")
+        if not 0 < self.gamma <= 1 or not 0 < self.gae_lambda <= 1:
+            problems.append("gamma and gae_lambda must be in (0, 1]")
+        if self.learning_rate <= 0:
+            problems.append(f"learning_rate must be > 0, got {self.learning_rate}")
+        if problems:
+            raise ValueError("Invalid training config: " + "; ".join(problems) + ".")
+
+    def replace(self, **changes: Any) -> TrainConfig:
+        """A copy with some fields changed; unknown names raise with the list of fields."""
+        known = {f.name for f in dataclasses.fields(self)}
+        unknown = sorted(set(changes) - known)
+        if unknown:
+            raise ValueError(f"Unknown training option(s) {unknown}; allowed: {sorted(known)}.")
+        return dataclasses.replace(self, **changes)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, values: dict[str, Any]) -> TrainConfig:
+        """Inverse of :meth:`to_dict` (JSON turns tuples into lists)."""
+        values = dict(values)
+        values["net_arch"] = tuple(values.get("net_arch", ()))
+        if isinstance(values.get("platform_speed"), list):
+            values["platform_speed"] = tuple(values["platform_speed"])
+        return cls().replace(**values)
+
+
+PAPER_NET = (512, 512, 256, 128)
+"""The paper's Fig. 3 network: fully connected ReLU layers 512, 512, 256, 128."""
+
+PRESETS: dict[str, TrainConfig] = {
+    "quick-cpu": TrainConfig(),
+    "paper": TrainConfig(
+        total_steps=20_000_000,
+        net_arch=PAPER_NET,
+        num_envs=512,
+        n_steps=64,
+        batch_size=8192,
+        n_epochs=4,
+        lr_schedule="linear",
+        checkpoint_every=2_000_000,
+    ),
+}
+"""Named presets; see :func:`describe_presets`."""
+
+PRESET_NOTES: dict[str, str] = {
+    "quick-cpu": "2 drones, static floor pad, point-mass, 128-128 ReLU: a landing policy in minutes on a laptop CPU.",
+    "paper": "The paper's set-up: 512-512-256-128 ReLU, 20 M steps, point-mass (about an hour or two on 2 cores).",
+}
+
+
+def get_preset(name: str) -> TrainConfig:
+    """The preset called ``name``; an unknown name raises with the list of presets."""
+    if name not in PRESETS:
+        raise ValueError(f"Unknown preset {name!r}; available presets: {', '.join(PRESETS)}.")
+    return PRESETS[name]
+
+
+def describe_presets() -> str:
+    """One line per preset, for ``marlander train --list``."""
+    return "\n".join(f"{name:<20} {PRESET_NOTES.get(name, '')}" for name in PRESETS)

@@ -1,0 +1,393 @@
+"""The PyBullet Crazyflie swarm: physical laws, landing, the three faces, determinism, bad input.
+
+Physical checks compare with the published figures written out here (not read from the code)
+and with textbook laws: hover thrust balance, free fall, the published force models.
+"""
+
+import math
+
+import gymnasium as gym
+import numpy as np
+import pybullet as p
+import pytest
+from gymnasium.utils.env_checker import check_env as gym_check_env
+from pettingzoo.test import parallel_api_test, parallel_seed_test
+from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+import marlander_lite
+from marlander_lite.crazyflie import CF2XParams, CrazyflieSwarm, PhysicsConfig, PIDGains
+from marlander_lite.crazyflie.control import CascadedPID, attitude_loop_spectral_radius, mixer_matrix
+from marlander_lite.crazyflie.physics import downwash_push, ground_effect_gain, motor_wrench
+from marlander_lite.crazyflie.world import CF2X_URDF
+from marlander_lite.episodes import LandingEpisodes
+from marlander_lite.platforms import PlatformConfig
+from marlander_lite.task import CONTACT_OTHER, TaskConfig
+
+ENV_ID = "marlander_lite/CrazyflieLanding-v0"
+# Published CF2X figures (shared/notes/reference_facts.md), written out independently of params.py.
+MASS, KF, G = 0.027, 3.16e-10, 9.81
+HOVER_RPM = math.sqrt(MASS * G / (4 * KF))
+
+
+def make_sim(num_drones=1, platform="static-floor", physics="bare", **task):
+    config = PhysicsConfig.preset(physics) if isinstance(physics, str) else physics
+    return CrazyflieSwarm(TaskConfig(num_drones=num_drones, **task), PlatformConfig(kind=platform), physics=config)
+
+
+def fly(sim, velocity, steps):
+    """Step with a constant velocity command ``(N, 3)`` m/s; returns positions and velocities ``(steps, N, 3)``."""
+    command = np.asarray(velocity, dtype=float)[None]
+    pos, vel = [], []
+    for _ in range(steps):
+        sim.step(command)
+        pos.append(sim.pos[0].copy())
+        vel.append(sim.vel[0].copy())
+    return np.array(pos), np.array(vel)
+
+
+# ---------------------------------------------------------------------------- the model
+
+
+def test_urdf_holds_the_published_figures():
+    client = p.connect(p.DIRECT)
+    try:
+        flags = p.URDF_USE_INERTIA_FROM_FILE | p.URDF_USE_IMPLICIT_CYLINDER
+        body = p.loadURDF(str(CF2X_URDF), flags=flags, physicsClientId=client)
+        mass, _, inertia, *_ = p.getDynamicsInfo(body, -1, physicsClientId=client)
+        assert mass == pytest.approx(0.027)
+        np.testing.assert_allclose(inertia, [1.4e-5, 1.4e-5, 2.17e-5])
+        (shape,) = p.getCollisionShapeData(body, -1, physicsClientId=client)
+        assert shape[2] == p.GEOM_CYLINDER
+        np.testing.assert_allclose(shape[3][:2], [0.025, 0.06])  # height, radius
+        discs = [v for v in p.getVisualShapeData(body, physicsClientId=client) if v[2] == p.GEOM_CYLINDER]
+        props = sorted(tuple(np.round(v[5][:2], 4)) for v in discs if v[3][1] == pytest.approx(0.0231))
+        assert props == sorted((sx * 0.028, sy * 0.028) for sx in (-1, 1) for sy in (-1, 1))
+    finally:
+        p.disconnect(client)
+
+
+def test_motor_model_and_mixer_agree_on_every_axis():
+    params = CF2XParams()
+    fz, *_ = motor_wrench([HOVER_RPM] * 4, params)
+    assert fz == pytest.approx(MASS * G)
+    # A positive torque command through the mixer gives a positive torque through the motor model.
+    for axis in range(3):
+        pwm = 38000 + 1000 * mixer_matrix(params)[:, axis]
+        rpm = params.pwm_to_rpm_scale * pwm + params.pwm_to_rpm_offset
+        torque = motor_wrench(rpm, params)[1:]
+        assert torque[axis] > 0 and all(abs(t) < 1e-12 for k, t in enumerate(torque) if k != axis)
+
+
+def test_ground_effect_and_downwash_follow_the_published_models_and_stay_bounded():
+    params = CF2XParams()
+    radius = 0.0231
+    assert ground_effect_gain(0.1, params) == pytest.approx(1 + 11.36859 * (radius / 0.4) ** 2)
+    assert ground_effect_gain(1e-9, params) == ground_effect_gain(0.025, params) < 1.7
+    # Far below another drone the published peak c1 (R / 4 dz)^2 applies (it is under the thrust bound).
+    assert downwash_push(1.0, 0.0, 0.265, params) == pytest.approx(-2267.18 * (radius / 4.0) ** 2)
+    # Close below, the published formula explodes; ours never exceeds the upper drone's thrust.
+    for dz in (1e-12, 1e-6, 1e-3, 0.05, 0.2):
+        push = downwash_push(dz, 0.0, 0.265, params)
+        assert math.isfinite(push) and -0.265 <= push <= 0.0
+    assert downwash_push(0.0, 0.0, 0.265, params) == 0.0  # same height: not in the wake
+    assert abs(downwash_push(1e-6, 0.2**2, 0.265, params)) < 1e-3  # and continuous there
+
+
+# ---------------------------------------------------------------------------- flight
+
+
+@pytest.mark.parametrize("physics", ["bare", "aero"])
+def test_hover_rpm_is_the_thrust_balance_and_position_holds(physics):
+    sim = make_sim(physics=physics)
+    start = np.array([[0.3, -0.2, 1.5]])
+    sim.place(0, start)
+    pos, _ = fly(sim, np.zeros((1, 3)), 5 * 24)
+    assert np.mean(sim.rpm[0]) == pytest.approx(HOVER_RPM, rel=0.01)
+    assert np.abs(pos[:, 0] - start).max() < 0.02
+
+
+def test_motor_lag_holds_the_mean_thrust_of_the_lagging_rotors_and_still_hovers():
+    tau = 0.03
+    sim = make_sim(physics=PhysicsConfig(motor_time_constant=tau))
+    sim.rpm[0] = [10000.0] * 4
+    effective = sim._lagged_motors(0, [15000.0] * 4)
+    t = np.linspace(0.0, sim.control_dt, 200001)
+    w = 15000.0 + (10000.0 - 15000.0) * np.exp(-t / tau)  # first-order lag towards the command
+    assert effective[0] ** 2 == pytest.approx(np.trapezoid(w * w, t) / sim.control_dt, rel=1e-6)
+    assert sim.rpm[0][0] == pytest.approx(w[-1])
+    start = np.array([[0.0, 0.0, 1.5]])
+    sim.place(0, start)
+    pos, _ = fly(sim, np.zeros((1, 3)), 2 * 24)
+    assert np.abs(pos[:, 0] - start).max() < 0.02
+
+
+def test_motors_off_the_drone_falls_as_z0_minus_half_g_t_squared():
+    sim = make_sim(num_drones=2)
+    sim.place(0, np.array([[0.0, 0.0, 2.0], [1.0, 1.0, 1.0]]))
+    sim.stop_motors(np.array([[True, False]]))
+    for k in range(1, 8):  # 7 steps of 1/24 s: 0.29 s
+        sim.step(np.zeros((1, 2, 3)))
+        t = k * sim.task.dt
+        assert sim.pos[0, 0, 2] == pytest.approx(2.0 - 0.5 * G * t * t, abs=0.01)
+    np.testing.assert_allclose(sim.pos[0, 0, :2], [0.0, 0.0], atol=1e-9)
+    np.testing.assert_allclose(sim.pos[0, 1], [1.0, 1.0, 1.0], atol=0.01)  # the other drone hovers
+
+
+@pytest.mark.parametrize("axis", [0, 1, 2])
+def test_one_metre_per_second_is_tracked_within_ten_percent_after_one_second(axis):
+    sim = make_sim(physics="aero")
+    sim.place(0, np.array([[0.0, 0.0, 1.5]]))
+    command = np.zeros((1, 3))
+    command[0, axis] = 1.0
+    _, vel = fly(sim, command, 36)
+    assert vel[23, 0, axis] == pytest.approx(1.0, rel=0.1)
+    assert vel[:, 0, axis].max() < 1.2  # bounded overshoot
+    others = [k for k in range(3) if k != axis]
+    assert np.abs(vel[:, 0, others]).max() < 0.1
+
+
+def test_attitude_loop_recovers_from_a_tilt_and_published_damping_would_not_at_48_hz():
+    params = CF2XParams()
+    assert attitude_loop_spectral_radius(params, PIDGains(), 48.0).max() < 1.0
+    assert attitude_loop_spectral_radius(params, PIDGains(att_d=(20000, 20000, 12000)), 48.0).max() > 1.0
+
+    def rate_after_tilt(gains):
+        sim = CrazyflieSwarm(TaskConfig(num_drones=1), PlatformConfig(), physics=PhysicsConfig(), gains=gains)
+        sim.place(0, np.array([[0.0, 0.0, 2.0]]))
+        quat = p.getQuaternionFromEuler([0.2, 0.0, 0.0])
+        p.resetBasePositionAndOrientation(sim.world.drones[0], [0, 0, 2], quat, physicsClientId=sim.client)
+        sim._read_state()
+        rates = []
+        for _ in range(36):
+            sim.step(np.zeros((1, 1, 3)))
+            rates.append(np.abs(sim.ang_vel[0, 0]).max())
+        return max(rates[24:]), np.abs(sim.quat[0, 0, :3]).max()
+
+    rate, tilt = rate_after_tilt(PIDGains())
+    assert rate < 0.05 and tilt < 0.005
+    rate, _ = rate_after_tilt(PIDGains(att_d=(20000, 20000, 12000)))
+    assert rate > 0.2  # still oscillating 1 to 1.5 s after the tilt
+
+
+def test_drones_side_by_side_stay_put_with_downwash_and_one_below_sinks():
+    sim = make_sim(num_drones=2, physics="aero")
+    start = np.array([[0.0, 0.0, 1.0], [0.2, 0.0, 1.0]])
+    sim.place(0, start)
+    pos, _ = fly(sim, np.zeros((2, 3)), 5 * 24)
+    assert np.isfinite(pos).all() and np.abs(pos - start).max() < 0.02
+    # Directly below another drone, the wake pushes down: with the velocity PID the drone sinks.
+    sinking = {}
+    for physics in ("bare", "aero"):
+        sim = make_sim(num_drones=2, physics=physics)
+        sim.place(0, np.array([[0.0, 0.0, 1.0], [0.05, 0.0, 1.3]]))
+        pos, _ = fly(sim, np.zeros((2, 3)), 24)
+        sinking[physics] = pos[-1, 0, 2] - 1.0
+    assert abs(sinking["bare"]) < 0.005 and sinking["aero"] < -0.05
+
+
+# ---------------------------------------------------------------------------- landing
+
+
+def descend_onto(sim, episodes, target_xy, speed=0.3, steps=48):
+    outcome = None
+    for _ in range(steps):
+        goal = sim.pad_pos[0, 0] if target_xy is None else np.append(target_xy, sim.pad_pos[0, 0, 2])
+        error = goal[:2] - sim.pos[0, 0, :2]
+        commands = np.zeros((1, sim.num_drones, 3))  # drone 0 descends, the others hover
+        commands[0, 0] = np.append(sim.pad_vel[0, 0, :2] + 3.0 * error, -speed)
+        outcome = episodes.step(commands / sim.task.max_speed)
+        if outcome.done[0]:
+            break
+    return outcome
+
+
+@pytest.mark.parametrize("platform", ["static-elevated", "moving-linear"])
+def test_landing_on_the_own_pad_latches_the_drone_to_it(platform):
+    sim = make_sim(platform=platform, physics="aero")
+    episodes = LandingEpisodes(sim, seed=1)
+    episodes.reset()
+    sim.place(0, sim.pad_pos[0] + [0.0, 0.0, 0.15])
+    outcome = descend_onto(sim, episodes, None)
+    assert outcome.success[0] and outcome.landed[0, 0]
+    assert outcome.landing_error[0, 0] < 0.02
+    offset = sim.pos[0, 0] - sim.pad_pos[0, 0]
+    sim.step(np.zeros((1, 1, 3)))
+    sim.step(np.zeros((1, 1, 3)))
+    np.testing.assert_allclose(sim.pos[0, 0] - sim.pad_pos[0, 0], offset, atol=1e-6)
+    np.testing.assert_allclose(sim.state().vel[0, 0], sim.pad_vel[0, 0])
+
+
+def test_touching_another_pad_or_landing_too_fast_is_a_crash():
+    sim = make_sim(num_drones=2)
+    episodes = LandingEpisodes(sim, seed=2)
+    episodes.reset()
+    # Drone 0 lands on drone 1's pad.
+    sim.place(0, np.vstack([sim.pad_pos[0, 1] + [0.0, 0.0, 0.1], sim.pad_pos[0, 1] + [1.0, 1.0, 1.0]]))
+    outcome = descend_onto(sim, episodes, sim.pad_pos[0, 1, :2])
+    assert outcome.crashed[0, 0] and not outcome.landed[0, 0] and sim.contact[0, 0] == CONTACT_OTHER
+    # Drone 0 hits its own pad at the speed limit: PyBullet stops it, the touchdown speed says crash.
+    episodes.reset()
+    sim.place(0, np.vstack([sim.pad_pos[0, 0] + [0.0, 0.0, 0.6], sim.pad_pos[0, 1] + [1.0, 1.0, 1.0]]))
+    outcome = descend_onto(sim, episodes, None, speed=3.0)
+    assert outcome.crashed[0, 0] and not outcome.landed[0, 0]
+
+
+def go_to_pad(obs, num_drones, gain=2.0, speed=1.0, below=0.15):
+    """A hand-written controller: fly to a cone above the pad, then descend along it at about 0.3 m/s."""
+    p = obs.reshape(num_drones, 13)[:, 0:3].copy()
+    horizontal = np.linalg.norm(p[:, :2], axis=-1)
+    p[:, 2] -= np.minimum(2.0 * horizontal, 1.0) - below
+    v = -gain * p
+    v *= np.minimum(1.0, speed / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-9))
+    return (v / 3.0).reshape(-1).astype(np.float32)
+
+
+def test_hand_written_controller_lands_both_drones_through_the_mdp():
+    env = gym.make(ENV_ID, num_drones=2, platform="static-elevated").unwrapped
+    results = []
+    for seed in range(4):
+        obs, _ = env.reset(seed=seed)
+        while True:
+            obs, _, terminated, truncated, info = env.step(go_to_pad(obs, 2))
+            if terminated or truncated:
+                break
+        results.append(info)
+    env.close()
+    assert sum(info["is_success"] for info in results) >= 3
+    errors = np.concatenate([info["landing_error"] for info in results if info["is_success"]])
+    assert errors.max() < 0.02  # within 2 cm of the pad centre
+
+
+def test_drone_placed_on_the_floor_rests_there_and_reports_the_contact():
+    sim = make_sim(num_drones=2)
+    rest = sim.task.landed_height
+    sim.place(0, np.array([[1.5, 1.5, rest], [-1.5, -1.5, rest]]))
+    sim.stop_motors(np.array([[True, True]]))
+    pos, vel = fly(sim, np.zeros((2, 3)), 12)
+    np.testing.assert_allclose(pos[-1, :, 2], rest, atol=2e-3)
+    assert np.abs(vel[-1]).max() < 1e-3 and (sim.contact[0] == CONTACT_OTHER).all()
+
+
+# ---------------------------------------------------------------------------- faces
+
+
+def test_gymnasium_and_sb3_checkers_pass():
+    env = gym.make(ENV_ID, num_drones=2)
+    gym_check_env(env.unwrapped, skip_render_check=True)
+    sb3_check_env(env.unwrapped)
+    env.close()
+
+
+def test_pettingzoo_checkers_pass():
+    parallel_api_test(marlander_lite.make_parallel_env("crazyflie", num_drones=2), num_cycles=60)
+    parallel_seed_test(lambda: marlander_lite.make_parallel_env("crazyflie", num_drones=2))
+
+
+def test_gym_env_is_deterministic_and_instances_do_not_interfere():
+    def make():
+        env = gym.make(ENV_ID, num_drones=2, platform="moving-arc", sensing="vicon").unwrapped
+        env.action_space.seed(7)
+        return env, [env.reset(seed=7)[0]]
+
+    def advance(env, trace):
+        obs, reward, terminated, truncated, _ = env.step(env.action_space.sample())
+        trace += [obs, np.array([reward])]
+        if terminated or truncated:
+            trace.append(env.reset()[0])
+
+    (a, trace_a), (b, trace_b) = make(), make()
+    for _ in range(40):  # two worlds in one process, stepped in turn
+        advance(a, trace_a)
+        advance(b, trace_b)
+    c, trace_c = make()
+    for _ in range(40):  # and one alone
+        advance(c, trace_c)
+    np.testing.assert_array_equal(np.concatenate(trace_a), np.concatenate(trace_b))
+    np.testing.assert_array_equal(np.concatenate(trace_a), np.concatenate(trace_c))
+
+
+def test_vec_env_is_deterministic_and_reports_success_and_episodes():
+    env = marlander_lite.make_vec_env("crazyflie", num_envs=2, seed=5, task={"episode_seconds": 0.5})
+
+    def rollout(seed):
+        env.seed(seed)  # each subprocess env i is reset with seed + i
+        rng = np.random.default_rng(0)
+        obs, ends = [env.reset()], []
+        for _ in range(16):
+            o, r, done, infos = env.step(rng.uniform(-1, 1, (2, 6)).astype(np.float32))
+            obs += [o, r[:, None]]
+            ends += [info for info, d in zip(infos, done, strict=True) if d]
+        return np.concatenate(obs, axis=1), ends
+
+    try:
+        (a, ends), (b, _), (c, _) = rollout(5), rollout(5), rollout(6)
+    finally:
+        env.close()
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a, c)
+    assert not np.array_equal(a[0], a[1])  # the two envs got different seeds
+    assert ends and all("is_success" in e and {"r", "l", "t"} <= set(e["episode"]) for e in ends)
+
+
+def test_rgb_array_render_and_video_recording(tmp_path):
+    env = gym.make(
+        ENV_ID,
+        num_drones=2,
+        render_mode="rgb_array",
+        video_path=tmp_path / "flight.gif",
+        task={"episode_seconds": 0.25},
+    )
+    env.reset(seed=0)
+    frame = env.render()
+    assert frame.shape == (360, 480, 3) and frame.dtype == np.uint8 and frame.std() > 5
+    for _ in range(6):
+        *_, terminated, truncated, _ = env.step(np.zeros(6, dtype=np.float32))
+        if terminated or truncated:
+            break
+    env.close()
+    assert (tmp_path / "flight-000.gif").stat().st_size > 1000
+
+
+# ---------------------------------------------------------------------------- bad input
+
+
+@pytest.mark.filterwarnings("ignore:.*render_mode")
+@pytest.mark.parametrize(
+    ("kwargs", "error", "message"),
+    [
+        ({"physics": {"wind": True}}, TypeError, r"\['wind'\].*allowed: physics_hz"),
+        ({"physics": "turbulent"}, ValueError, "'turbulent'.*allowed: bare, aero"),
+        ({"physics": {"control_hz": 50}}, ValueError, "control_hz=50 Hz must divide physics_hz=240"),
+        ({"task": {"policy_hz": 20}}, ValueError, "policy_hz=20 Hz must divide control_hz=48"),
+        ({"physics": {"drag": "yes"}}, TypeError, "drag must be True or False"),
+        ({"render_mode": "ascii"}, ValueError, "allowed: None, rgb_array, human"),
+        ({"propellers": 6}, TypeError, "allowed options"),
+        ({"platform": "trampoline"}, ValueError, "allowed: static-floor"),
+    ],
+)
+def test_bad_env_options_raise_clear_errors(kwargs, error, message):
+    with pytest.raises(error, match=message):
+        gym.make(ENV_ID, **kwargs)
+
+
+def test_bad_actions_and_positions_raise_and_leave_the_env_usable():
+    env = gym.make(ENV_ID, num_drones=2).unwrapped
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="NaN"):
+        env.step(np.array([0, 0, np.nan, 0, 0, 0], dtype=np.float32))
+    with pytest.raises(ValueError, match=r"\(2, 3\)"):
+        env.simulator.place(0, np.zeros((3, 3)))
+    with pytest.raises(ValueError, match="one environment"):
+        env.simulator.place(1, np.zeros((2, 3)))
+    env.step(np.zeros(6, dtype=np.float32))
+    with pytest.raises(ValueError, match="num_envs"):
+        marlander_lite.make_vec_env("crazyflie", num_envs=0)
+    with pytest.raises(TypeError, match="allowed options"):
+        marlander_lite.make_vec_env("crazyflie", num_envs=1, gui=True)
+
+
+def test_controller_rejects_gains_it_cannot_use():
+    with pytest.raises(ValueError, match="att_d"):
+        CascadedPID(CF2XParams(), PIDGains(att_d=(0.0, 1.0, 1.0)), 1, 1 / 48)
+    with pytest.raises(ValueError, match="mass"):
+        CF2XParams(mass=-1.0)

@@ -1,0 +1,246 @@
+"""The whole deployment rehearsed in simulation: a policy file lands, every fault ends safely, nothing is lost.
+
+The outcomes are checked against the simulator's ground truth (where the drones are, whether
+their motors run), not against the loop's own beliefs.
+"""
+
+import dataclasses
+import json
+from pathlib import Path
+
+import matplotlib
+import numpy as np
+import pytest
+
+from marlander_lite.cli import main
+from marlander_lite.deploy.config import EXAMPLE_CONFIG, LabConfig, SimulationConfig, load_lab_config
+from marlander_lite.deploy.faults import FAULT_KINDS, FaultSpec
+from marlander_lite.deploy.flight_log import FlightLogWriter, read_flight_log
+from marlander_lite.deploy.link import CrazyflieLink
+from marlander_lite.deploy.mission import Mission
+from marlander_lite.deploy.plots import plot_timeline, plot_trajectories
+from marlander_lite.deploy.pose_sources import SimulatedPoseSource
+from marlander_lite.deploy.rehearsal import rehearse
+from marlander_lite.deploy.sim_world import SimulatedWorld, make_simulator
+from marlander_lite.policy_file import PolicyContract, load_policy, save_policy
+
+matplotlib.use("Agg")
+
+try:
+    import marlander_lite.crazyflie.simulator  # noqa: F401
+
+    SIMULATORS = ["pointmass", "pybullet"]
+except ImportError:  # the PyBullet swarm is not part of this checkout
+    SIMULATORS = ["pointmass"]
+
+
+@pytest.fixture(scope="module")
+def policy_path(tmp_path_factory) -> Path:
+    """A real policy file: linear, a P-controller on each drone's position relative to a point 5 cm under its
+    goal, stiffer horizontally so that the drone is over its pad before it is down (v_xy = -3 p_xy,
+    v_z = -1.2 (p_z + 0.05) m/s before the lab limit)."""
+    weight, bias = np.zeros((6, 26)), np.zeros(6)
+    for i in range(2):
+        weight[3 * i : 3 * i + 3, 13 * i : 13 * i + 3] = -np.diag([1.0, 1.0, 0.4])
+        bias[3 * i + 2] = -0.4 * 0.05
+    contract = PolicyContract(
+        num_drones=2, max_speed=3.0, policy_hz=24.0, activation="relu", hidden_sizes=(), normalize_observations=False
+    )
+    path = tmp_path_factory.mktemp("policy") / "p_controller.safetensors"
+    return save_policy(path, contract, {"actor.0.weight": weight, "actor.0.bias": bias})
+
+
+@pytest.fixture(scope="module")
+def lab() -> LabConfig:
+    base = load_lab_config(EXAMPLE_CONFIG)
+    return base.replace(simulation=SimulationConfig(simulator="pointmass", max_time_s=30.0))
+
+
+def check_log(path: Path, result) -> None:
+    """Every tick of the mission is in the log, in order, with every event, and the summary at the end."""
+    log = read_flight_log(path)
+    assert not log.truncated and log.summary is not None
+    assert [t["tick"] for t in log.ticks] == list(range(result.mission.ticks))
+    assert [(e["t"], e["kind"]) for e in log.events] == [(e.t, e.kind) for e in result.mission.events]
+    assert log.summary["on_pad"] == result.mission.on_pad
+
+
+@pytest.mark.parametrize("simulator", SIMULATORS)
+def test_a_policy_file_lands_both_drones(simulator, lab, policy_path, tmp_path):
+    log_path = tmp_path / "flight.jsonl"
+    result = rehearse(lab, policy_path, simulator=simulator, log_path=log_path)
+    m = result.mission
+    assert m.success, result.summary()
+    assert result.safe and not result.motors_on.any()
+    true_error = np.linalg.norm((result.final_positions - result.pad_positions)[:, :2], axis=1)
+    assert (true_error < 0.1).all(), true_error  # ground truth: on the pads (radius 0.1 m)
+    np.testing.assert_allclose(m.landing_error, true_error, atol=0.02)  # what the loop measured
+    assert result.min_separation > 0.15
+    assert [e.kind for e in m.events][:2] == ["armed", "policy_start"]
+    check_log(log_path, result)
+    log = read_flight_log(log_path)
+    assert log.header["drones"] == ["cf1", "cf2"] and log.header["policy"]["hidden_sizes"] == []
+    policy_ticks = [t for t in log.ticks if t["obs"] is not None]
+    assert len(policy_ticks) > 10 and np.shape(policy_ticks[0]["obs"]) == (2, 13)
+    assert all(
+        abs(v) <= lab.limits.max_speed + 1e-6
+        for t in log.ticks
+        for c in t["cmd"]
+        if "v" in c
+        for v in [np.linalg.norm(c["v"])]
+    )
+    ax = plot_trajectories(log)
+    assert len(ax.lines) == 2
+    assert len(plot_timeline(log)) == 2
+
+
+def test_rehearsals_are_deterministic(lab, policy_path):
+    a = rehearse(lab, policy_path, seed=3)
+    b = rehearse(lab, policy_path, seed=3)
+    c = rehearse(lab, policy_path, seed=4)
+    assert a.mission.landing_error == b.mission.landing_error
+    np.testing.assert_array_equal(a.final_positions, b.final_positions)
+    assert not np.allclose(a.final_positions, c.final_positions)
+
+
+@pytest.mark.parametrize("simulator", SIMULATORS)
+@pytest.mark.parametrize("fault", FAULT_KINDS)
+def test_every_fault_ends_safely_and_nothing_is_lost(fault, simulator, lab, policy_path, tmp_path):
+    log_path = tmp_path / f"{fault}.jsonl"
+    result = rehearse(lab, policy_path, simulator=simulator, fault=FaultSpec(fault), log_path=log_path)
+    m = result.mission
+    kinds = [e.kind for e in m.events]
+    assert result.safe, result.summary()
+    assert result.inside_fence.all() and result.at_rest.all(), result.summary()  # every drone down, in the box
+    assert "fault_injected" in kinds
+    check_log(log_path, result)
+    if fault in ("dropout", "nan-pose", "latency-spike"):
+        assert kinds.index("stale_hover") < kinds.index("recovered"), kinds
+    if fault == "nan-pose":
+        assert "invalid_pose" in kinds
+    if fault == "occlusion":
+        assert "stale_land" in kinds and not any(m.on_pad)
+    if fault == "link-loss":
+        assert m.phases[0] == "lost" and m.phases[1] == "down"
+        watchdog = [msg for d, _, kind, msg in result.firmware_events if d == "cf1" and kind == "watchdog"]
+        assert any("level out and hold" in w for w in watchdog) and any("motors off" in w for w in watchdog)
+    if fault == "geofence-breach":
+        assert kinds.index("geofence_breach") < kinds.index("land"), kinds
+        assert "hover" in [t["phase"][0] for t in read_flight_log(log_path).ticks]
+
+
+class ScriptedPolicy:
+    """Wraps a policy; at call ``at`` (and after) does ``what``: raise Ctrl-C, raise an error, or return NaN."""
+
+    def __init__(self, policy, at: int, what: str) -> None:
+        self.policy, self.at, self.what, self.calls = policy, at, what, 0
+        self.contract = policy.contract
+
+    def act(self, obs):
+        self.calls += 1
+        if self.calls >= self.at:
+            if self.what == "ctrl-c" and self.calls == self.at:
+                raise KeyboardInterrupt
+            if self.what == "crash":
+                raise RuntimeError("bug in the policy code")
+            if self.what == "nan":
+                return np.full((1, 6), np.nan)
+        return self.policy.act(obs)
+
+
+def test_ctrl_c_lands_every_drone(lab, policy_path, tmp_path):
+    policy = ScriptedPolicy(load_policy(policy_path, lab.task_config()), at=12, what="ctrl-c")
+    result = rehearse(lab, policy, log_path=tmp_path / "log.jsonl")
+    kinds = [e.kind for e in result.mission.events]
+    assert "interrupt" in kinds and result.safe and result.at_rest.all(), result.summary()
+    assert not any(result.mission.on_pad)
+    check_log(tmp_path / "log.jsonl", result)
+
+
+def test_nan_actions_hover_then_land(lab, policy_path):
+    policy = ScriptedPolicy(load_policy(policy_path, lab.task_config()), at=12, what="nan")
+    result = rehearse(lab, policy)
+    kinds = [e.kind for e in result.mission.events]
+    assert "invalid_action" in kinds and "land" in kinds and result.safe and result.at_rest.all()
+    messages = [e.message for e in result.mission.events if e.kind == "land"]
+    assert messages == ["no valid action for too long: landing every drone"]
+
+
+def test_a_crash_lands_the_drones_and_keeps_every_logged_tick(lab, policy_path, tmp_path):
+    """A bug inside the loop: the exception propagates after a best-effort landing; the log is intact,
+    and was written tick by tick (read back while flying)."""
+    world = SimulatedWorld(lab, make_simulator(lab, "pointmass"), seed=0)
+    source = SimulatedPoseSource(world, seed=0)
+    link = CrazyflieLink([d.uri for d in lab.drones], lab.crazyflie, factory=world.factory)
+    link.open()
+    path = tmp_path / "crash.jsonl"
+    log = FlightLogWriter(path, {"drones": lab.drone_names})
+    seen = []
+
+    def read_while_flying(mission: Mission, t: float) -> None:
+        lines = path.read_text().splitlines()
+        seen.append((mission.tick, len(lines)))
+
+    policy = ScriptedPolicy(load_policy(policy_path, lab.task_config()), at=20, what="crash")
+    mission = Mission(lab, policy, source, link, clock=world, log=log, hooks=[read_while_flying])
+    with pytest.raises(RuntimeError, match="bug in the policy code"):
+        mission.run()
+    assert all(lines == tick + 1 for tick, lines in seen)  # header + one line per finished tick
+    flight = read_flight_log(path)
+    assert [t["tick"] for t in flight.ticks] == list(range(mission.tick))
+    assert flight.summary is not None and flight.summary["events"][-1]["kind"] == "error"
+    assert "bug in the policy code" in flight.summary["events"][-1]["message"]
+    assert mission.phase == ["down", "down"]
+    world.sleep_until(world.time + 1.0)
+    assert not world.motors_on.any() and (world.drone_positions()[:, 2] < 0.05).all()
+    link.close()
+
+
+def test_arming_refuses_drones_standing_too_close(lab, policy_path):
+    close = lab.replace(simulation=SimulationConfig(simulator="pointmass", start_positions=((0.0, 1.0), (0.1, 1.0))))
+    result = rehearse(close, policy_path)
+    [event] = result.mission.events
+    assert event.kind == "arming_failed" and "cf1 and cf2 are 0.10 m apart" in event.message
+    assert not result.mission.armed
+    assert (result.final_positions[:, 2] < 0.02).all() and not result.motors_on.any()
+
+
+def test_command_line_rehearsal_and_bad_faults(lab, policy_path, tmp_path, capsys):
+    config = tmp_path / "lab.yaml"
+    config.write_text(EXAMPLE_CONFIG.read_text().replace("simulator: pybullet", "simulator: pointmass"))
+    args = ["deploy", "--sim", "--config", str(config), "--policy", str(policy_path)]
+    png = tmp_path / "fig7.png"
+    assert main([*args, "--log", str(tmp_path / "a.jsonl"), "--plot", str(png)]) == 0
+    assert png.stat().st_size > 10_000
+    out = capsys.readouterr().out
+    assert "touchdown" in out and "Flight log:" in out
+    assert main([*args, "--log", str(tmp_path / "b.jsonl"), "--inject", "dropout"]) == 0
+    with pytest.raises(SystemExit) as exit_info:
+        main([*args, "--inject", "solar-flare"])
+    assert exit_info.value.code == 2
+    assert "choose from 'dropout', 'latency-spike', 'occlusion'" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_info:
+        main(["deploy", "--config", str(config), "--policy", str(policy_path), "--inject", "dropout"])
+    assert exit_info.value.code == 2 and "--inject only works in a rehearsal" in capsys.readouterr().err
+    summary = json.loads((tmp_path / "a.jsonl").read_text().splitlines()[-1])
+    assert summary["type"] == "summary" and summary["success"] is True
+
+
+def test_moving_platform_landing_rides_along(lab, policy_path):
+    sim = SimulationConfig(simulator="pointmass", platform="moving-linear", platform_speed=0.2)
+    moving = lab.replace(simulation=sim)
+    result = rehearse(moving, policy_path)
+    assert all(result.mission.on_pad) and result.riding.all() and result.safe, result.summary()
+    offset = result.final_positions - result.pad_positions  # the plate kept moving: the drones rest on it
+    assert (np.linalg.norm(offset[:, :2], axis=1) < 0.1).all()
+    np.testing.assert_allclose(offset[:, 2], lab.task_config().landed_height, atol=1e-6)
+
+
+def test_arming_refuses_a_take_off_height_below_an_elevated_plate(lab, policy_path):
+    low = lab.replace(
+        simulation=SimulationConfig(simulator="pointmass", platform="static-elevated"),
+        limits=dataclasses.replace(lab.limits, takeoff_height=0.6),
+    )
+    result = rehearse(low, policy_path)
+    [event] = result.mission.events
+    assert event.kind == "arming_failed" and "is not 0.3 m above the pads" in event.message
