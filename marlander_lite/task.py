@@ -89,6 +89,10 @@ class TaskConfig:
     """Two drones collide when their centres are closer than this (m): CF2X radius 0.06 m, doubled, plus margin."""
     touchdown_speed_max: float = 0.5
     """A touchdown on the own pad counts as a landing only below this speed relative to the pad (m/s)."""
+    landing_tolerance: float | None = None
+    """Training aid, not in the paper: when set, a touchdown counts as a landing only within this horizontal
+    distance of the pad centre (m), stricter than the pad radius; None (the default, used for every
+    evaluation) accepts the whole pad."""
     landed_height: float = 0.0125
     """Height of a drone's body origin above a surface it rests on (m): half the CF2X collision cylinder."""
 
@@ -284,9 +288,12 @@ def touchdown_outcome(
     """Classify touchdowns: ``(landed_now, crashed)``, each ``(num_envs, N)`` bool.
 
     A drone lands when it touches its own pad with its centre within ``pad_radius`` of the pad
-    centre and moves slower than ``touchdown_speed_max`` relative to the pad. Any other contact
-    (floor, plate, another pad, too fast, off-centre) is a crash.
+    centre (or the stricter ``landing_tolerance``, a training aid) and moves slower than
+    ``touchdown_speed_max`` relative to the pad. Any other contact (floor, plate, another pad,
+    too fast, off-centre) is a crash.
     """
+    if config.landing_tolerance is not None:
+        pad_radius = min(pad_radius, config.landing_tolerance)
     touching = (contact != CONTACT_NONE) & ~landed_before
     landed_now = (
         touching

@@ -160,3 +160,14 @@ def test_timing_properties():
     assert CFG.dt == pytest.approx(1 / 24)
     assert CFG.max_steps == 240
     assert CFG.obs_dim == 26 and CFG.act_dim == 6
+
+
+def test_landing_tolerance_is_a_stricter_pad_for_training():
+    strict = CFG.replace(landing_tolerance=0.03)
+    contact = np.full((1, 2), CONTACT_OWN_PAD)
+    horizontal, speed, none = np.array([[0.02, 0.05]]), np.array([[0.2, 0.2]]), np.zeros((1, 2), bool)
+    landed, crashed = task.touchdown_outcome(contact, horizontal, speed, none, 0.1, strict)
+    np.testing.assert_array_equal(landed, [[True, False]])
+    np.testing.assert_array_equal(crashed, [[False, True]])
+    landed, _ = task.touchdown_outcome(contact, horizontal, speed, none, 0.1, CFG)
+    assert landed.all()

@@ -1,12 +1,19 @@
 """Fit the point-mass simulator to the PyBullet Crazyflie (issue 3, deliverable 6).
 
 The point-mass drone (:class:`~marlander_lite.pointmass.simulator.PointMassSwarm`) follows a
-velocity command through a first-order lag of time constant ``tau`` whose change of velocity
-is capped at ``a_max dt``. :func:`measure_responses` records how the PyBullet Crazyflie under its
-cascaded PID answers the same kind of commands, and :func:`fit_point_mass` finds the
-``(tau, a_max)`` that make the point mass answer alike, by least squares on the velocity traces
-(Gauss-Newton with finite differences, numpy only). Both simulators run through their
+velocity command through a simplified multirotor velocity loop (see
+:class:`~marlander_lite.pointmass.simulator.PointMassParams`): velocity-loop time constants, an
+attitude-loop time constant, a tilt limit and limits on the collective thrust.
+:func:`crazyflie_response` records how the PyBullet Crazyflie under its cascaded PID answers
+"go and brake" commands (a velocity held for 0.5 s, then zero), alone along each axis and
+combined, up to the paper's 3 m/s; :func:`fit_point_mass` finds the six parameters that make the
+point mass answer alike, by least squares on the velocity traces (Gauss-Newton with finite
+differences, numpy only). Both simulators run through their
 :class:`~marlander_lite.episodes.Simulator` interface, so the fit compares the real code paths.
+
+Combined commands matter: a Crazyflie sinking at full speed has little thrust left to tilt with
+and barely accelerates sideways. A model fitted on single-axis steps misses that, and a policy
+trained on it dives at its pad and arrives with its sideways speed still unbraked.
 """
 
 from __future__ import annotations
@@ -25,26 +32,38 @@ START = np.array([0.0, 0.0, 2.0])
 """Where every response starts, hovering (m): far from the floor, the plate and the walls."""
 
 
-def step_commands(amplitudes: tuple[float, ...], axes: tuple[int, ...], steps: int) -> np.ndarray:
-    """Constant velocity commands, one per (axis, amplitude) pair: ``(K, steps, 3)`` m/s."""
-    pairs = [(axis, amp) for axis in axes for amp in amplitudes]
-    commands = np.zeros((len(pairs), steps, 3))
-    for k, (axis, amp) in enumerate(pairs):
-        commands[k, :, axis] = amp
-    return commands
+DIRECTIONS = np.array(
+    [
+        [1, 0, 0],
+        [0, 1, 0],
+        [0, 0, 1],
+        [0, 0, -1],
+        [1, 0, -1],
+        [1, 0, 1],
+        [1, 1, -1],
+        [1, 0, -0.5],
+        [0.5, 0, -1],
+        [1, 1, 0],
+    ]
+)
+"""Directions of the fit's commands (scaled so the largest component is the amplitude)."""
 
 
-def fit_commands(steps: int = 48) -> np.ndarray:
-    """The step commands the point-mass defaults were fitted on: ``(26, steps, 3)`` m/s.
+def fit_commands(hold: int = 12, brake: int = 12) -> np.ndarray:
+    """Go-and-brake commands: ``hold`` steps at ``u``, then ``brake`` steps at 0; ``(K, hold + brake, 3)`` m/s.
 
-    Along x and y: 0.25, 0.5, 1, 2 and 3 m/s (the paper's speed limit); along z: 0.25, 0.5 and
-    0.75 m/s, so that 2 s of climbing or sinking stays within 1.5 m of the 2 m start; each in
-    both directions, held for ``steps`` policy steps (2 s at 24 Hz).
+    ``u`` runs over :data:`DIRECTIONS` (and their mirror images) at amplitudes 0.5, 1.5 and 3 m/s;
+    0.5 s at 3 m/s moves the drone about 1 m, so every trace stays inside the arena from :data:`START`.
     """
-    commands = np.concatenate(
-        [step_commands((0.25, 0.5, 1.0, 2.0, 3.0), (0, 1), steps), step_commands((0.25, 0.5, 0.75), (2,), steps)]
-    )
-    return np.concatenate([commands, -commands])
+    directions = np.concatenate([DIRECTIONS, -DIRECTIONS]).astype(float)
+    directions /= np.abs(directions).max(axis=1, keepdims=True)
+    commands = []
+    for amplitude in (0.5, 1.5, 3.0):
+        for d in directions:
+            sequence = np.zeros((hold + brake, 3))
+            sequence[:hold] = amplitude * d
+            commands.append(sequence)
+    return np.array(commands)
 
 
 def crazyflie_response(commands: np.ndarray, task: TaskConfig, physics: PhysicsConfig | None = None) -> np.ndarray:
@@ -80,16 +99,40 @@ def point_mass_response(commands: np.ndarray, task: TaskConfig, params: PointMas
     return out
 
 
+FITTED = (
+    "velocity_time_constant",
+    "vertical_time_constant",
+    "attitude_time_constant",
+    "max_tilt_deg",
+    "max_climb_acceleration",
+    "max_sink_acceleration",
+)
+"""The :class:`PointMassParams` fields the fit sets."""
+
+
 @dataclass(frozen=True)
 class PointMassFit:
     """Result of :func:`fit_point_mass`."""
 
     params: PointMassParams
-    """The fitted ``velocity_time_constant`` (s) and ``max_acceleration`` (m/s^2)."""
+    """The fitted time constants (s), tilt limit (degrees) and thrust limits (m/s^2)."""
     rms_error: float
     """Root mean square difference of the velocity traces after the fit (m/s)."""
     iterations: int
     """Gauss-Newton iterations run."""
+
+
+def _to_theta(params: PointMassParams) -> np.ndarray:
+    values = [getattr(params, name) for name in FITTED]
+    values[3] = np.tan(np.radians(values[3]))  # fit the tilt's tangent, like every other value, in logs
+    return np.log(values)
+
+
+def _from_theta(theta: np.ndarray) -> PointMassParams:
+    values = np.exp(theta)
+    values[3] = np.degrees(np.arctan(values[3]))
+    values[5] = min(values[5], 0.99 * 9.81)
+    return PointMassParams(**{name: float(v) for name, v in zip(FITTED, values, strict=True)})
 
 
 def fit_point_mass(
@@ -97,28 +140,27 @@ def fit_point_mass(
     target: np.ndarray,
     task: TaskConfig,
     start: PointMassParams | None = None,
-    iterations: int = 12,
+    iterations: int = 15,
 ) -> PointMassFit:
-    """Least-squares ``(tau, a_max)`` that make :func:`point_mass_response` match ``target`` ``(K, T, 3)``.
+    """Least-squares point-mass parameters (:data:`FITTED`) matching ``target`` ``(K, T, 3)`` m/s.
 
-    Gauss-Newton on ``theta = (log tau, log a_max)`` (logs keep both positive): the Jacobian of
-    the residual ``r(theta) = v_pm(theta) - target`` comes from central differences, and each
-    step solves ``J d = -r`` with ``numpy.linalg.lstsq``, halved until the error falls.
+    Gauss-Newton on the logarithms of the :data:`FITTED` values (the tilt as its tangent; logs
+    keep them positive): the Jacobian of the residual ``r = v_pm(theta) - target`` comes from central
+    differences, and each step solves ``J d = -r`` with ``numpy.linalg.lstsq``, halved until the
+    error falls.
     """
-    start = start or PointMassParams()
-    theta = np.log([start.velocity_time_constant, start.max_acceleration])
-    a_cap = np.log(9.81 * 0.999)
+    theta = _to_theta(start or PointMassParams())
 
     def residual(th: np.ndarray) -> np.ndarray:
-        tau, acc = np.exp(th[0]), np.exp(min(th[1], a_cap))
-        return (point_mass_response(commands, task, PointMassParams(tau, acc)) - target).ravel()
+        return (point_mass_response(commands, task, _from_theta(th)) - target).ravel()
 
     r = residual(theta)
     done = 0
     while done < iterations:
         done += 1
         h = 1e-3
-        jac = np.column_stack([(residual(theta + h * e) - residual(theta - h * e)) / (2 * h) for e in np.eye(2)])
+        basis = np.eye(len(theta))
+        jac = np.column_stack([(residual(theta + h * e) - residual(theta - h * e)) / (2 * h) for e in basis])
         delta = np.linalg.lstsq(jac, -r, rcond=None)[0]
         step, improved = 1.0, False
         while step > 1e-3:
@@ -129,5 +171,4 @@ def fit_point_mass(
             step /= 2
         if not improved or np.abs(step * delta).max() < 1e-4:
             break
-    params = PointMassParams(float(np.exp(theta[0])), float(np.exp(min(theta[1], a_cap))))
-    return PointMassFit(params, float(np.sqrt(np.mean(r * r))), done)
+    return PointMassFit(_from_theta(theta), float(np.sqrt(np.mean(r * r))), done)

@@ -1,10 +1,11 @@
 """The lightweight simulator: each drone is a point mass that tracks its velocity command.
 
-A Crazyflie under a cascaded velocity PID follows a velocity step roughly like a first-order
-lag whose acceleration saturates when the attitude limit is reached. This module integrates
-exactly that, for every drone of every environment at once, with no Python loop over
-environments. Attitude and angular velocity are derived from the acceleration (a multirotor
-tilts its thrust along ``a + g e_z``), so eq. 2's ``q`` and ``omega`` carry real information.
+A Crazyflie under a cascaded velocity PID answers a velocity command through two loops: the
+velocity loop asks for an acceleration, the attitude loop tilts the thrust axis towards it, and
+the collective thrust is set for the vertical part. This module integrates a simplified version
+of exactly that (:class:`PointMassParams`), for every drone of every environment at once, with
+no Python loop over environments. The attitude is the thrust axis, so eq. 2's ``q`` and
+``omega`` carry real information.
 
 Speed note: every batched array is Fortran-ordered, so ``pos[..., 0]`` is one contiguous
 plane and per-environment values broadcast over drones without short inner loops. Numpy keeps
@@ -28,27 +29,58 @@ GRAVITY = 9.81
 
 @dataclass(frozen=True)
 class PointMassParams:
-    """How a point-mass drone answers a velocity command."""
+    """How a point-mass drone answers a velocity command: a multirotor's velocity loop, simplified.
 
-    velocity_time_constant: float = 0.051
-    """Time constant tau of the first-order velocity lag (s): least-squares fit to the PyBullet Crazyflie's
-    velocity step responses (``marlander_lite.crazyflie.fit``, notebook 02)."""
-    max_acceleration: float = 4.07
-    """Largest acceleration magnitude (m/s^2): fitted like ``velocity_time_constant`` (the PID's 30 deg tilt
-    limit allows 5.7; the time the drone takes to tilt lowers the effective value)."""
+    Each step the velocity loop asks for the acceleration ``(u - v) / tau`` (with its own ``tau`` for
+    the vertical axis, where the thrust acts directly); the thrust vector that
+    would give it is ``f = a + g e_z``, tilted at most ``max_tilt`` from vertical. The thrust *axis*
+    turns towards that direction with time constant ``attitude_time_constant`` (the attitude loop),
+    and the thrust *magnitude* is set for the asked-for vertical acceleration along the current
+    axis, within ``[g - max_sink_acceleration, g + max_climb_acceleration]``. The drone then
+    accelerates by ``T d - g e_z``. This reproduces what a Crazyflie under a cascaded PID does: a
+    short delay before it moves sideways (it must tilt first), and little sideways authority while
+    it sinks fast (little thrust to tilt with). The defaults are a least-squares fit to the PyBullet
+    Crazyflie (``marlander_lite.crazyflie.fit``, notebook 02).
+    """
+
+    velocity_time_constant: float = 0.142
+    """tau of the horizontal velocity loop (s): the acceleration asked for per m/s of velocity error is 1/tau."""
+    vertical_time_constant: float = 0.0556
+    """tau of the vertical velocity loop (s)."""
+    attitude_time_constant: float = 0.135
+    """Time constant with which the thrust axis turns to the asked-for direction (s)."""
+    max_tilt_deg: float = 34.0
+    """Largest tilt of the thrust axis from vertical (degrees)."""
+    max_climb_acceleration: float = 10.3
+    """Thrust headroom above hover (m/s^2): the thrust is at most g + this."""
+    max_sink_acceleration: float = 5.39
+    """The thrust is at least g - this (m/s^2); below g, the motors never stop."""
     randomization: float = 0.0
-    """Domain randomisation: each episode scales tau and a_max by independent factors drawn log-uniformly
-    from [1/(1+r), 1+r]; 0 keeps them fixed. Policies trained with r > 0 cope with other dynamics (PyBullet)."""
+    """Domain randomisation: each episode scales the time constants (the two velocity ones together), and
+    (together) the tilt's tangent and the
+    thrust limits, by independent factors drawn log-uniformly from [1/(1+r), 1+r]; 0 keeps them fixed. Policies
+    trained with r > 0 cope with other dynamics, the PyBullet Crazyflie's among them."""
 
     def __post_init__(self) -> None:
-        if not (np.isfinite(self.velocity_time_constant) and self.velocity_time_constant > 0):
-            raise ValueError(f"velocity_time_constant must be > 0 s, got {self.velocity_time_constant!r}.")
-        if not (np.isfinite(self.max_acceleration) and 0 < self.max_acceleration < GRAVITY):
-            raise ValueError(f"max_acceleration must be in (0, {GRAVITY}) m/s^2, got {self.max_acceleration!r}.")
-        if not (np.isfinite(self.randomization) and 0 <= self.randomization <= 2):
-            raise ValueError(f"randomization must be in [0, 2], got {self.randomization!r}.")
-        if self.max_acceleration * (1 + self.randomization) >= GRAVITY:
-            raise ValueError("max_acceleration * (1 + randomization) must stay below g; lower one of them.")
+        for name, value in vars(self).items():
+            if not np.isfinite(value):
+                raise ValueError(f"PointMassParams.{name} must be finite, got {value!r}.")
+        checks = [
+            (self.velocity_time_constant > 0, "velocity_time_constant must be > 0 s"),
+            (self.vertical_time_constant > 0, "vertical_time_constant must be > 0 s"),
+            (self.attitude_time_constant > 0, "attitude_time_constant must be > 0 s"),
+            (0 < self.max_tilt_deg < 90, "max_tilt_deg must be in (0, 90) degrees"),
+            (self.max_climb_acceleration > 0, "max_climb_acceleration must be > 0 m/s^2"),
+            (self.max_sink_acceleration > 0, "max_sink_acceleration must be > 0 m/s^2"),
+            (0 <= self.randomization <= 2, "randomization must be in [0, 2]"),
+            (
+                self.max_sink_acceleration * (1 + self.randomization) < GRAVITY,
+                "max_sink_acceleration * (1 + randomization) must stay below g (the motors never stop)",
+            ),
+        ]
+        for ok, message in checks:
+            if not ok:
+                raise ValueError(f"Invalid PointMassParams: {message}; got {self!r}.")
 
 
 def batch_zeros(*shape: int) -> np.ndarray:
@@ -80,9 +112,14 @@ class PointMassSwarm:
         self._pad_radius_sq = geometry.pad_radius**2
         self._lift = geometry.pad_thickness + task_config.landed_height
         self._dt = task_config.dt
-        # Per-env response: blend = 1 - exp(-dt / tau) and the largest velocity change a_max dt.
-        self._blend = np.full((e, 1, 1), 1.0 - np.exp(-self._dt / self.params.velocity_time_constant))
-        self._max_dv = np.full((e, 1), self.params.max_acceleration * self._dt)
+        # Per-env response (arrays so that domain randomisation can vary them per episode).
+        prm = self.params
+        self._gain = np.empty((e, 1, 3), order="F")
+        self._gain[...] = 1.0 / np.array([prm.velocity_time_constant] * 2 + [prm.vertical_time_constant])
+        self._turn = np.full((e, 1, 1), 1.0 - np.exp(-self._dt / prm.attitude_time_constant))
+        self._tan_tilt = np.full((e, 1), np.tan(np.radians(prm.max_tilt_deg)))
+        self._thrust_max = np.full((e, 1), GRAVITY + prm.max_climb_acceleration)
+        self._thrust_min = np.full((e, 1), GRAVITY - prm.max_sink_acceleration)
         self.time = np.zeros(e)
         self.pos, self.vel, self.ang_vel = batch_zeros(e, n, 3), batch_zeros(e, n, 3), batch_zeros(e, n, 3)
         self.quat = batch_zeros(e, n, 4)
@@ -99,12 +136,16 @@ class PointMassSwarm:
     # ------------------------------------------------------------------ Simulator API
     def reset(self, env_ids: np.ndarray, rng: np.random.Generator) -> None:
         self.motion.sample(rng, env_ids)
-        if self.params.randomization:
-            log_range = np.log1p(self.params.randomization)
-            tau_scale, acc_scale = np.exp(rng.uniform(-log_range, log_range, size=(2, len(env_ids))))
-            tau = self.params.velocity_time_constant * tau_scale
-            self._blend[env_ids, 0, 0] = 1.0 - np.exp(-self._dt / tau)
-            self._max_dv[env_ids, 0] = self.params.max_acceleration * acc_scale * self._dt
+        prm = self.params
+        if prm.randomization:
+            log_range = np.log1p(prm.randomization)
+            slow, slow_turn, authority = np.exp(rng.uniform(-log_range, log_range, size=(3, len(env_ids))))
+            taus = np.array([prm.velocity_time_constant] * 2 + [prm.vertical_time_constant])
+            self._gain[env_ids, 0, :] = 1.0 / (slow[:, None] * taus)
+            self._turn[env_ids, 0, 0] = 1.0 - np.exp(-self._dt / (prm.attitude_time_constant * slow_turn))
+            self._tan_tilt[env_ids, 0] = np.tan(np.radians(prm.max_tilt_deg)) * authority
+            self._thrust_max[env_ids, 0] = GRAVITY + prm.max_climb_acceleration * authority
+            self._thrust_min[env_ids, 0] = GRAVITY - prm.max_sink_acceleration * authority
         self.time[env_ids] = 0.0
         self._update_platform(env_ids)
         self.pos[env_ids] = task.sample_spawn_positions(
@@ -119,24 +160,20 @@ class PointMassSwarm:
         self.motors_stopped[env_ids] = False
 
     def step(self, velocity: np.ndarray) -> None:
-        # First-order lag towards the command, with the change of velocity capped at a_max dt.
-        dv = (velocity - self.vel) * self._blend
-        dv *= np.minimum(1.0, self._max_dv / np.maximum(vector_norm(dv), 1e-12))[..., None]
-        falling = self.motors_stopped.any()
-        if falling:  # no thrust: gravity alone changes the velocity
-            np.copyto(dv, (0.0, 0.0, -GRAVITY * self._dt), where=self.motors_stopped[..., None])
-        self.pos += (self.vel + 0.5 * dv) * self._dt  # trapezoid: mean of old and new velocity
-        self.vel += dv
-        if falling:
-            old = self.quat.copy(), self.ang_vel.copy(), self._thrust_dir.copy()
-        self._update_attitude(dv)
-        if falling:  # a falling drone keeps its attitude (the thrust direction is undefined)
-            for array, before in zip((self.quat, self.ang_vel, self._thrust_dir), old, strict=True):
-                np.copyto(array, before, where=self.motors_stopped[..., None])
-        self.time += self._dt
+        accel, axis = self._thrust(velocity)
+        if self.motors_stopped.any():  # no thrust: gravity alone, and the attitude stays
+            stopped = self.motors_stopped[..., None]
+            np.copyto(accel, (0.0, 0.0, -GRAVITY), where=stopped)
+            np.copyto(axis, self._thrust_dir, where=stopped)
+        start = self.pos.copy()
+        dt = self._dt
+        self.pos += (self.vel + (0.5 * dt) * accel) * dt
+        self.vel += accel * dt
+        self._set_attitude(axis)
+        self.time += dt
         if self.platform.is_moving:
             self._update_platform()
-        self._resolve_contacts()
+        self._resolve_contacts(start)
         if self.landed.any():
             self._hold_landed()
 
@@ -179,18 +216,33 @@ class PointMassSwarm:
         self.motors_stopped |= np.asarray(stopped, dtype=bool)
 
     # ------------------------------------------------------------------ internals
-    def _update_attitude(self, dv: np.ndarray) -> None:
-        """Tilt along ``a + g e_z`` with zero yaw; angular velocity from the tilt change.
+    def _thrust(self, velocity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Acceleration over the next step and the thrust axis it is produced along (see PointMassParams)."""
+        wanted = (velocity - self.vel) * self._gain
+        wanted[..., 2] += GRAVITY  # the thrust (per unit mass) that would give the wanted acceleration
+        fz = np.clip(wanted[..., 2], self._thrust_min, self._thrust_max)
+        horizontal = np.sqrt(wanted[..., 0] ** 2 + wanted[..., 1] ** 2)
+        wanted[..., :2] *= np.minimum(1.0, fz * self._tan_tilt / np.maximum(horizontal, 1e-12))[..., None]
+        wanted[..., 2] = fz
+        target = wanted / vector_norm(wanted)[..., None]
+        # The attitude loop turns the thrust axis part of the way to the wanted direction ...
+        axis = self._thrust_dir + (target - self._thrust_dir) * self._turn
+        axis /= vector_norm(axis)[..., None]
+        # ... and the collective thrust gives the wanted vertical acceleration along that axis.
+        thrust = np.clip(fz / np.maximum(axis[..., 2], 0.1), self._thrust_min, self._thrust_max)
+        accel = axis * thrust[..., None]
+        accel[..., 2] -= GRAVITY
+        return accel, axis
 
-        The quaternion taking ``e_z`` to a unit vector ``d`` is ``(-d_y, d_x, 0, 1 + d_z)``
-        divided by ``sqrt(2 (1 + d_z))``. Over one step the thrust axis turns from ``d_prev`` to
-        ``d`` about ``d_prev x d`` by ``atan2(|d_prev x d|, d_prev . d)``: that angle over ``dt``
-        is the angular velocity (yaw never changes).
+    def _set_attitude(self, axis: np.ndarray) -> None:
+        """Attitude (zero yaw) with body z along the thrust axis, and the angular velocity of its turn.
+
+        The quaternion taking ``e_z`` to a unit vector ``d`` is ``(-d_y, d_x, 0, 1 + d_z)`` divided
+        by ``sqrt(2 (1 + d_z))``. Over one step the axis turns from ``d_prev`` to ``d`` about
+        ``d_prev x d`` by ``atan2(|d_prev x d|, d_prev . d)``: that angle over ``dt`` is the
+        angular velocity.
         """
-        d = dv * (1.0 / self._dt)
-        d[..., 2] += GRAVITY
-        d /= np.maximum(vector_norm(d), 1e-12)[..., None]
-        dx, dy, dz = d[..., 0], d[..., 1], d[..., 2]
+        dx, dy, dz = axis[..., 0], axis[..., 1], axis[..., 2]
         px, py, pz = self._thrust_dir[..., 0], self._thrust_dir[..., 1], self._thrust_dir[..., 2]
         cx, cy, cz = py * dz - pz * dy, pz * dx - px * dz, px * dy - py * dx
         sin = np.sqrt(cx * cx + cy * cy + cz * cz)
@@ -202,7 +254,7 @@ class PointMassSwarm:
         self.quat[..., 0] = -dy * scale
         self.quat[..., 1] = dx * scale
         self.quat[..., 3] = (1.0 + dz) * scale
-        self._thrust_dir = d
+        self._thrust_dir = axis
 
     def _update_platform(self, env_ids: np.ndarray | None = None) -> None:
         """Move the plates to ``self.time`` (only ``env_ids``' when given)."""
@@ -212,8 +264,8 @@ class PointMassSwarm:
         self._pads[sel] = plate_pos[:, None, :] + self.motion.pad_offsets
         self._pad_vel[sel] = plate_vel[:, None, :]
 
-    def _resolve_contacts(self) -> None:
-        """Stop drones at the floor or the plate and report what they touch."""
+    def _surface(self) -> tuple[np.ndarray, np.ndarray]:
+        """Height a drone at its current x, y rests at (floor or plate), and whether it is over its own pad."""
         rx = self.pos[..., 0] - self._plate_pos[:, 0:1]
         ry = self.pos[..., 1] - self._plate_pos[:, 1:2]
         over_plate = (np.abs(rx) <= self._half_x) & (np.abs(ry) <= self._half_y)
@@ -221,17 +273,35 @@ class PointMassSwarm:
         on_own_pad = ex * ex + ey * ey <= self._pad_radius_sq
         # The pads are 2.5 mm thick: anywhere over the plate counts as pad height, a conservative bound.
         rest_height = np.where(over_plate, self._plate_pos[:, 2:3] + self._lift, self.task.landed_height)
+        return rest_height, on_own_pad
+
+    def _resolve_contacts(self, start: np.ndarray) -> None:
+        """Stop drones at the floor or the plate and report what they touch.
+
+        A drone that reaches a surface during the step stops where its path crossed it (the
+        surface holds it), not where the free flight would have ended.
+        """
+        rest_height, on_own_pad = self._surface()
         touching = (self.pos[..., 2] <= rest_height) & ~self.landed
+        if not touching.any():
+            self.contact = np.zeros_like(self.contact)
+            return
+        first = touching & (self.contact == task.CONTACT_NONE)
+        if first.any():
+            z0, z1 = start[..., 2], self.pos[..., 2]
+            fraction = np.clip((z0 - rest_height) / np.maximum(z0 - z1, 1e-12), 0.0, 1.0)
+            crossing = start + fraction[..., None] * (self.pos - start)
+            np.copyto(self.pos, crossing, where=first[..., None])
+            rest_height, on_own_pad = self._surface()
         # A drone already resting on a surface stops pushing into it. At the first contact the
         # impact velocity is kept: the touchdown test needs it.
-        resting = touching & (self.contact != task.CONTACT_NONE)
+        resting = touching & ~first
         if resting.any():
             np.copyto(self.vel[..., 2], np.maximum(self.vel[..., 2], 0.0), where=resting)
         self.contact = np.where(
             touching, np.where(on_own_pad, task.CONTACT_OWN_PAD, task.CONTACT_OTHER), task.CONTACT_NONE
         ).astype(np.int8)
-        if touching.any():
-            np.copyto(self.pos[..., 2], rest_height, where=touching)
+        np.copyto(self.pos[..., 2], rest_height, where=touching)
 
     def _hold_landed(self) -> None:
         mask = self.landed[..., None]

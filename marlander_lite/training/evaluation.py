@@ -92,10 +92,12 @@ def evaluate_policy_file(
 ) -> EvaluationSummary:
     """Load ``path`` and run ``episodes`` deterministic episodes on the paper's random starts.
 
-    The task is the one the policy was trained on, except that training aids (near-pad starts)
-    are switched off; ``env_options`` go to the env (``platform``, ``sensing``, ``task`` overrides...).
+    The task is the one the policy was trained on, except that training aids (near-pad starts, a
+    stricter landing tolerance) are switched off; ``env_options`` go to the env (``platform``,
+    ``sensing``, ``task`` overrides...).
     """
     policy = load_policy(path)
-    task = {**policy.contract.task, "spawn_near_pad_fraction": 0.0, **env_options.pop("task", {})}
+    training_aids = {"spawn_near_pad_fraction": 0.0, "landing_tolerance": None}
+    task = {**policy.contract.task, **training_aids, **env_options.pop("task", {})}
     infos = run_episodes(policy, simulator, episodes, seed, task=task, **env_options)
     return summarise(infos, TaskConfig().replace(**task).collision_distance)
