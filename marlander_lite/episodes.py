@@ -137,7 +137,7 @@ class LandingEpisodes:
         e, n = simulator.num_envs, self.task.num_drones
         self.num_envs, self.num_drones = e, n
         self.rng = np.random.default_rng(seed)
-        self.channel = ObservationChannel(self.sensing, e, n, self.task.dt)
+        self.channel = ObservationChannel(self.sensing, e, n, self.task.dt, self.task.obs_per_drone)
         self._goal_lift = np.array([0.0, 0.0, self.task.landed_height])
         self.steps = np.zeros(e, dtype=np.int64)
         # Fortran order (env index fastest) matches the simulators' arrays; see pointmass.simulator.
@@ -159,7 +159,8 @@ class LandingEpisodes:
     def _measure(self, s: SwarmState) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         rel_pos = s.pos - (s.pad_pos + self._goal_lift)
         rel_vel = s.vel - s.pad_vel
-        return rel_pos, rel_vel, task.observe(rel_pos, s.quat, rel_vel, s.ang_vel)
+        pad_vel = s.pad_vel if self.task.observe_platform_velocity else None
+        return rel_pos, rel_vel, task.observe(rel_pos, s.quat, rel_vel, s.ang_vel, pad_vel)
 
     def reset(self, env_ids: np.ndarray | None = None) -> np.ndarray:
         """Start new episodes in ``env_ids`` (all by default); returns their observations ``(k, N, 13)``."""

@@ -81,8 +81,9 @@ class PlatformConfig:
 
     kind: PlatformKind = "static-floor"
     """One of ``PLATFORM_KINDS``."""
-    speed: float | None = None
-    """Tool speed for moving kinds (m/s); ``None`` means 0 for static kinds, 0.35 for moving ones."""
+    speed: float | tuple[float, float] | None = None
+    """Tool speed for moving kinds (m/s); a ``(low, high)`` pair draws it uniformly per episode (for
+    training); ``None`` means 0 for static kinds, 0.35 for moving ones."""
     geometry: PlateGeometry = field(default_factory=PlateGeometry)
     """Plate and pad sizes."""
     elevated_height: tuple[float, float] = (0.5, 1.0)
@@ -98,9 +99,13 @@ class PlatformConfig:
         if self.kind not in PLATFORM_KINDS:
             raise ValueError(f"Unknown platform {self.kind!r}; allowed: {', '.join(PLATFORM_KINDS)}.")
         if self.speed is not None:
-            if not np.isfinite(self.speed) or self.speed < 0:
-                raise ValueError(f"platform_speed must be a finite number >= 0 m/s, got {self.speed!r}.")
-            if self.kind not in MOVING_KINDS and self.speed > 0:
+            low, high = self.speed_range
+            if not (np.isfinite(low) and np.isfinite(high) and 0 <= low <= high):
+                raise ValueError(
+                    f"platform_speed must be a finite number >= 0 m/s or a (low, high) pair with 0 <= low <= high, "
+                    f"got {self.speed!r}."
+                )
+            if self.kind not in MOVING_KINDS and high > 0:
                 raise ValueError(
                     f"platform_speed={self.speed} was given for the static platform {self.kind!r}; "
                     f"use one of {MOVING_KINDS} for a moving platform, or leave the speed out."
@@ -112,8 +117,20 @@ class PlatformConfig:
             raise ValueError("linear_stroke and arc_radius must be > 0 m and arc_half_angle in (0, pi].")
 
     @property
+    def speed_range(self) -> tuple[float, float]:
+        """``(low, high)`` tool speed in m/s (equal for a fixed speed), defaults filled in."""
+        if isinstance(self.speed, tuple | list):
+            if len(self.speed) != 2:
+                raise ValueError(f"platform_speed as a range must be (low, high), got {self.speed!r}.")
+            return float(self.speed[0]), float(self.speed[1])
+        speed = self.resolved_speed
+        return speed, speed
+
+    @property
     def resolved_speed(self) -> float:
-        """Tool speed in m/s with the default for moving kinds filled in."""
+        """Tool speed in m/s with the default for moving kinds filled in (the middle of a range)."""
+        if isinstance(self.speed, tuple | list):
+            return 0.5 * (float(self.speed[0]) + float(self.speed[1]))
         if self.speed is not None:
             return float(self.speed)
         return DEFAULT_MOVING_SPEED if self.kind in MOVING_KINDS else 0.0
@@ -154,6 +171,8 @@ class PlatformMotion:
         """Per env: the plate position (static), the stroke midpoint (linear) or the UR10 base axis (arc)."""
         self.heading = np.zeros(num_envs)
         self.phase = np.zeros(num_envs)
+        self.speed = np.full(num_envs, config.resolved_speed)
+        """Per env tool speed (m/s), drawn from ``config.speed_range`` at every :meth:`sample`."""
 
     def _path_half_width(self) -> float:
         if self.config.kind == "moving-linear":
@@ -173,6 +192,9 @@ class PlatformMotion:
             self.anchor[env_ids, 2] = rng.uniform(*cfg.elevated_height, size=n)
         self.heading[env_ids] = rng.uniform(-math.pi, math.pi, size=n)
         self.phase[env_ids] = rng.uniform(0.0, 2.0, size=n)
+        low, high = cfg.speed_range
+        if high > low:
+            self.speed[env_ids] = rng.uniform(low, high, size=n)
 
     def state(self, t: np.ndarray, env_ids: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Plate position and velocity at elapsed times ``t`` (s), each ``(len(t), 3)``.
@@ -180,8 +202,8 @@ class PlatformMotion:
         ``t`` holds one time per env, or per env of ``env_ids`` when given.
         """
         cfg = self.config
-        speed = cfg.resolved_speed
         sel = slice(None) if env_ids is None else env_ids
+        speed = self.speed[sel]
         pos = np.asfortranarray(self.anchor[sel]).copy(order="F")
         vel = np.zeros_like(pos)
         phase, heading = self.phase[sel], self.heading[sel]

@@ -50,6 +50,8 @@ class PolicyContract:
     """Widths of the hidden layers of the actor."""
     normalize_observations: bool
     """Whether ``obs_mean``/``obs_var`` tensors standardise the input (VecNormalize statistics)."""
+    obs_per_drone: int = OBS_PER_DRONE
+    """Numbers per drone in the input: 13 (eq. 2), or 16 when the platform velocity is observed."""
     obs_clip: float = 10.0
     """Standardised inputs are clipped to +-obs_clip."""
     obs_epsilon: float = 1e-8
@@ -61,7 +63,7 @@ class PolicyContract:
 
     @property
     def obs_dim(self) -> int:
-        return OBS_PER_DRONE * self.num_drones
+        return self.obs_per_drone * self.num_drones
 
     @property
     def act_dim(self) -> int:
@@ -78,6 +80,11 @@ class PolicyContract:
             problems.append(f"it takes {self.num_drones} drone(s), the task has {expected_drones}")
         if not np.isclose(self.max_speed, task.max_speed):
             problems.append(f"its max_speed is {self.max_speed} m/s, the task's is {task.max_speed} m/s")
+        if self.obs_per_drone != task.obs_per_drone:
+            problems.append(
+                f"it takes {self.obs_per_drone} numbers per drone, the task gives {task.obs_per_drone} "
+                "(TaskConfig.observe_platform_velocity differs)"
+            )
         if not np.isclose(self.policy_hz, task.policy_hz):
             problems.append(f"it acts at {self.policy_hz} Hz, the task at {task.policy_hz} Hz")
         if problems:

@@ -60,15 +60,18 @@ class ObservationChannel:
     ``latency_s`` ago, linearly interpolated between the two nearest policy steps.
     """
 
-    def __init__(self, config: SensingConfig, num_envs: int, num_drones: int, dt: float) -> None:
+    def __init__(
+        self, config: SensingConfig, num_envs: int, num_drones: int, dt: float, obs_per_drone: int = OBS_PER_DRONE
+    ) -> None:
         self.config = config
         steps = config.latency_s / dt
         self._whole = int(np.floor(steps))
         self._frac = float(steps - self._whole)
-        self._history = np.zeros((self._whole + 2, num_envs, num_drones, OBS_PER_DRONE))
-        std = np.zeros(OBS_PER_DRONE)
+        self._history = np.zeros((self._whole + 2, num_envs, num_drones, obs_per_drone))
+        std = np.zeros(obs_per_drone)
         std[0:3], std[3:7] = config.pos_noise_std, config.quat_noise_std
         std[7:10], std[10:13] = config.vel_noise_std, config.ang_vel_noise_std
+        std[13:] = config.vel_noise_std  # the platform velocity, when observed, is estimated like the drones' own
         self._std = std
 
     def reset(self, env_ids: np.ndarray, obs: np.ndarray, rng: np.random.Generator) -> np.ndarray:

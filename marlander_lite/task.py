@@ -95,6 +95,10 @@ class TaskConfig:
     evaluation) accepts the whole pad."""
     landed_height: float = 0.0125
     """Height of a drone's body origin above a surface it rests on (m): half the CF2X collision cylinder."""
+    observe_platform_velocity: bool = False
+    """Beyond the paper: append the platform's world velocity (3 numbers, m/s) to each drone's eq. 2 observation
+    (16 numbers then). Eq. 2 only has velocities relative to the platform, from which a memoryless policy cannot
+    tell how fast the pad moves; a motion-capture system measures it anyway. False keeps the paper's 13."""
 
     def __post_init__(self) -> None:
         checks: list[tuple[bool, str]] = [
@@ -137,9 +141,14 @@ class TaskConfig:
         return round(self.episode_seconds * self.policy_hz)
 
     @property
+    def obs_per_drone(self) -> int:
+        """Length of one drone's observation: 13 (eq. 2), or 16 with ``observe_platform_velocity``."""
+        return OBS_PER_DRONE + 3 * bool(self.observe_platform_velocity)
+
+    @property
     def obs_dim(self) -> int:
-        """Length of the centralised observation: 13 N."""
-        return OBS_PER_DRONE * self.num_drones
+        """Length of the centralised observation: 13 N (or 16 N)."""
+        return self.obs_per_drone * self.num_drones
 
     @property
     def act_dim(self) -> int:
@@ -158,7 +167,13 @@ class TaskConfig:
 # ----------------------------------------------------------------------------- eq. 2
 
 
-def observe(rel_pos: np.ndarray, quat: np.ndarray, rel_vel: np.ndarray, ang_vel: np.ndarray) -> np.ndarray:
+def observe(
+    rel_pos: np.ndarray,
+    quat: np.ndarray,
+    rel_vel: np.ndarray,
+    ang_vel: np.ndarray,
+    pad_vel: np.ndarray | None = None,
+) -> np.ndarray:
     """Eq. 2: ``O_t^i = [p_t^i, q_t^i, v_t^i, omega_t^i]``, shape ``(..., 13)``.
 
     Args:
@@ -167,21 +182,26 @@ def observe(rel_pos: np.ndarray, quat: np.ndarray, rel_vel: np.ndarray, ang_vel:
         quat: ``q``, attitude quaternion ``(x, y, z, w)``, ``(..., 4)``.
         rel_vel: ``v``, drone velocity minus the platform's, ``(..., 3)`` m/s.
         ang_vel: ``omega``, angular velocity, ``(..., 3)`` rad/s, world frame.
+        pad_vel: only with ``TaskConfig.observe_platform_velocity`` (beyond the paper): the pad's
+            world velocity ``(..., 3)`` m/s, appended as numbers 13-15.
 
     Each part is clipped to :data:`OBS_LIMITS`. For a batch ``(num_envs, N, 13)`` the result is
     laid out so that ``obs.reshape(num_envs, 13 N)`` is a view with the env index varying fastest
     (a Fortran-ordered matrix), which is cheap to fill from the simulators' arrays.
     """
     lead = rel_pos.shape[:-1]
+    size = OBS_PER_DRONE + (0 if pad_vel is None else 3)
     if len(lead) == 2:
-        out = np.empty((lead[1], OBS_PER_DRONE, lead[0])).transpose(2, 0, 1)
+        out = np.empty((lead[1], size, lead[0])).transpose(2, 0, 1)
     else:
-        out = np.empty((*lead, OBS_PER_DRONE))
+        out = np.empty((*lead, size))
     p_max, _, v_max, w_max = OBS_LIMITS
     np.clip(rel_pos, -p_max, p_max, out=out[..., 0:3])
     out[..., 3:7] = quat  # unit quaternions are within [-1, 1] already
     np.clip(rel_vel, -v_max, v_max, out=out[..., 7:10])
     np.clip(ang_vel, -w_max, w_max, out=out[..., 10:13])
+    if pad_vel is not None:
+        np.clip(pad_vel, -v_max, v_max, out=out[..., 13:16])
     return out
 
 

@@ -89,3 +89,14 @@ def test_bad_platform_configs_say_what_is_allowed():
     with pytest.raises(ValueError, match="static platform"):
         PlatformConfig(kind="static-floor", speed=0.3)
     assert PlatformConfig(kind="moving-linear").resolved_speed == pytest.approx(0.35)
+
+
+def test_a_speed_range_draws_one_speed_per_episode():
+    cfg = PlatformConfig(kind="moving-arc", speed=(0.2, 0.5))
+    motion = PlatformMotion(cfg, 1000, 2, 2.0)
+    motion.sample(np.random.default_rng(0), np.arange(1000))
+    assert 0.2 <= motion.speed.min() < 0.22 and 0.48 < motion.speed.max() <= 0.5
+    _, vel = motion.state(np.full(1000, 0.7))
+    np.testing.assert_allclose(np.linalg.norm(vel, axis=1), motion.speed)
+    with pytest.raises(ValueError, match="low <= high"):
+        PlatformConfig(kind="moving-arc", speed=(0.5, 0.2))

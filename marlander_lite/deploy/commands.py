@@ -89,13 +89,13 @@ def _rehearse(lab: LabConfig, args: argparse.Namespace, log_path: Path) -> bool:
 
 
 def _fly(lab: LabConfig, args: argparse.Namespace, log_path: Path) -> bool:
+    from marlander_lite.deploy.config import load_lab_policy
     from marlander_lite.deploy.link import CrazyflieLink
     from marlander_lite.deploy.mission import Mission
     from marlander_lite.deploy.pose_sources import MotionCaptureSource, RealClock
     from marlander_lite.deploy.rehearsal import flight_header
-    from marlander_lite.policy_file import load_policy
 
-    policy = load_policy(args.policy, lab.task_config())
+    policy = load_lab_policy(args.policy, lab)
     print(f"Connecting to {lab.mocap.kind} at {lab.mocap.hostname or '(mock)'} ...")
     source = MotionCaptureSource(lab.mocap.kind, lab.mocap.connect_cfg(), lab.mocap.connect_timeout_s)
     link = CrazyflieLink([d.uri for d in lab.drones], lab.crazyflie)

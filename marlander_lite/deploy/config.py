@@ -20,7 +20,8 @@ import yaml
 
 from marlander_lite.deploy.schema import ConfigError, build, check
 from marlander_lite.platforms import PLATFORM_KINDS, PlatformKind
-from marlander_lite.task import TaskConfig
+from marlander_lite.policy_file import MLPPolicy, load_policy, read_contract
+from marlander_lite.task import OBS_PER_DRONE, TaskConfig
 
 MocapKind = Literal["vicon", "optitrack", "qualisys", "vrpn", "mock"]
 MOCAP_KINDS: tuple[str, ...] = get_args(MocapKind)
@@ -366,10 +367,17 @@ class LabConfig:
         """The pad of each drone, in drone order."""
         return [self.pads[d.pad] for d in self.drones]
 
-    def task_config(self) -> TaskConfig:
-        """The MDP constants the policy must have been trained with."""
+    def task_config(self, observe_platform_velocity: bool = False) -> TaskConfig:
+        """The MDP constants the policy must have been trained with.
+
+        ``observe_platform_velocity`` is the policy's choice, not the lab's: pass
+        ``contract.obs_per_drone > 13`` of its policy file (see :func:`load_lab_policy`).
+        """
         return TaskConfig(
-            num_drones=self.num_drones, max_speed=self.limits.policy_max_speed, policy_hz=self.rates.policy_hz
+            num_drones=self.num_drones,
+            max_speed=self.limits.policy_max_speed,
+            policy_hz=self.rates.policy_hz,
+            observe_platform_velocity=observe_platform_velocity,
         )
 
     @classmethod
@@ -380,6 +388,12 @@ class LabConfig:
     def replace(self, **changes: Any) -> LabConfig:
         """A copy with some sections replaced."""
         return dataclasses.replace(self, **changes)
+
+
+def load_lab_policy(path: str | Path, lab: LabConfig) -> MLPPolicy:
+    """Load a policy file for this lab, refusing one whose contract does not fit (drones, speed, rate)."""
+    contract = read_contract(path)
+    return load_policy(path, lab.task_config(contract.obs_per_drone > OBS_PER_DRONE))
 
 
 def load_lab_config(path: str | Path) -> LabConfig:

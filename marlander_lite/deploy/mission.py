@@ -36,6 +36,7 @@ from marlander_lite.deploy.pose_sources import Clock, PoseFrame, PoseSource
 from marlander_lite.deploy.results import MissionResult
 from marlander_lite.deploy.runner import InvalidAction, Policy, PolicyRunner
 from marlander_lite.deploy.safety import Event, EventKind, SafetyMonitor
+from marlander_lite.task import OBS_PER_DRONE
 
 Phase = Literal["idle", "takeoff", "policy", "hover", "landing", "down", "lost"]
 Mode = Literal["preflight", "takeoff", "policy", "landing", "done"]
@@ -47,7 +48,7 @@ class Mission:
 
     Args:
         lab: the lab config.
-        policy: the policy (``load_policy(path, lab.task_config())``).
+        policy: the policy (``load_lab_policy(path, lab)``).
         source: where poses come from.
         link: the Crazyflies (already opened).
         clock: the loop's clock.
@@ -71,7 +72,8 @@ class Mission:
     ) -> None:
         self.lab, self.source, self.link, self.clock, self.log = lab, source, link, clock, log
         self.hooks = list(hooks)
-        self.task = lab.task_config()
+        contract = getattr(policy, "contract", None)
+        self.task = lab.task_config(contract is not None and contract.obs_per_drone > OBS_PER_DRONE)
         self.runner = PolicyRunner(policy, self.task, lab.limits.max_speed)
         self.estimator = SwarmEstimator(lab, estimator, landed_height=self.task.landed_height)
         self.safety = SafetyMonitor(lab)

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from marlander_lite.deploy.config import LabConfig
+from marlander_lite.deploy.config import LabConfig, load_lab_policy
 from marlander_lite.deploy.faults import FaultInjector, FaultSpec
 from marlander_lite.deploy.flight_log import FlightLogWriter
 from marlander_lite.deploy.link import CrazyflieLink
@@ -27,7 +27,6 @@ from marlander_lite.deploy.pose_sources import SimulatedPoseSource
 from marlander_lite.deploy.results import MissionResult
 from marlander_lite.deploy.runner import Policy
 from marlander_lite.deploy.sim_world import SimulatedWorld, make_simulator
-from marlander_lite.policy_file import load_policy
 
 
 @dataclass
@@ -112,7 +111,7 @@ def rehearse(
 
     Args:
         lab: the lab config (its ``simulation`` section sets the platform, noise and seed).
-        policy: a policy file (loaded and checked against ``lab.task_config()``) or a policy object.
+        policy: a policy file (loaded and checked with :func:`load_lab_policy`) or a policy object.
         simulator: ``pybullet`` or ``pointmass``; default: ``lab.simulation.simulator``.
         fault: a fault to inject, or None.
         seed: overrides ``lab.simulation.seed``.
@@ -120,7 +119,7 @@ def rehearse(
         settle_s: simulated seconds to run after the mission with no commands.
     """
     if isinstance(policy, str | Path):
-        policy = load_policy(policy, lab.task_config())
+        policy = load_lab_policy(policy, lab)
     sim_cfg = lab.simulation
     seed = sim_cfg.seed if seed is None else seed
     kind = simulator or sim_cfg.simulator

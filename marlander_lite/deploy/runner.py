@@ -49,8 +49,9 @@ class PolicyRunner:
         self.policy, self.task, self.max_speed = policy, task_config, max_speed
 
     def observe(self, est: SwarmEstimate) -> np.ndarray:
-        """Eq. 2 for every drone, ``(N, 13)``."""
-        return task.observe(est.pos - est.goal, est.quat, est.vel - est.pad_vel, est.ang_vel)
+        """Eq. 2 for every drone, ``(N, 13)`` (``(N, 16)`` when the policy also observes the platform velocity)."""
+        pad_vel = est.pad_vel if self.task.observe_platform_velocity else None
+        return task.observe(est.pos - est.goal, est.quat, est.vel - est.pad_vel, est.ang_vel, pad_vel)
 
     def act(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(action (3N,) in [-1, 1], clamped velocity (N, 3) m/s)``; raises :class:`InvalidAction`."""

@@ -49,7 +49,7 @@ class SwarmLandingEnv(gym.Env):
         self.platform = simulator.platform
         self.num_drones = self.task.num_drones
         self.episodes = LandingEpisodes(simulator, sensing)
-        self.observation_space = centralised_observation_space(self.num_drones)
+        self.observation_space = centralised_observation_space(self.task)
         self.action_space = centralised_action_space(self.num_drones)
         self._started = False
 

@@ -15,7 +15,8 @@ from marlander_lite.task import ACT_PER_DRONE, OBS_LIMITS, TaskConfig
 COMMON_OPTIONS = ("num_drones", "platform", "platform_speed", "task", "sensing")
 """Keyword options every environment of both simulators accepts."""
 
-_OBS_HIGH = np.repeat(np.array(OBS_LIMITS, dtype=np.float32), (3, 4, 3, 3))
+# Bounds of one drone's observation; the optional platform velocity has the velocity bound.
+_OBS_HIGH = np.repeat(np.array((*OBS_LIMITS, OBS_LIMITS[2]), dtype=np.float32), (3, 4, 3, 3, 3))
 
 
 def reject_unknown(unknown: Mapping[str, Any], allowed: tuple[str, ...], where: str) -> None:
@@ -24,10 +25,16 @@ def reject_unknown(unknown: Mapping[str, Any], allowed: tuple[str, ...], where: 
         raise TypeError(f"{where} got unknown option(s) {sorted(unknown)}; allowed options: {', '.join(allowed)}.")
 
 
+def check_num_envs(num_envs: object) -> None:
+    """Raise a ``ValueError`` unless ``num_envs`` is an integer >= 1."""
+    if isinstance(num_envs, bool) or not isinstance(num_envs, int | np.integer) or num_envs < 1:
+        raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}.")
+
+
 def build_configs(
     num_drones: int = 2,
     platform: str | PlatformConfig = "static-floor",
-    platform_speed: float | None = None,
+    platform_speed: float | tuple[float, float] | None = None,
     task: TaskConfig | Mapping[str, Any] | None = None,
     sensing: SensingConfig | str | None = None,
 ) -> tuple[TaskConfig, PlatformConfig, SensingConfig]:
@@ -36,7 +43,7 @@ def build_configs(
     Args:
         num_drones: drones per swarm, N >= 1.
         platform: one of ``PLATFORM_KINDS`` or a full :class:`PlatformConfig`.
-        platform_speed: tool speed of a moving platform (m/s).
+        platform_speed: tool speed of a moving platform (m/s), or a ``(low, high)`` range drawn per episode.
         task: a :class:`TaskConfig`, or a mapping of fields to override in the default one.
         sensing: a :class:`SensingConfig`, ``"vicon"`` for the lab's noise and latency, or
             ``None``/``"perfect"`` for none.
@@ -72,9 +79,10 @@ def build_configs(
     return task_config, platform_config, sensing_config
 
 
-def drone_observation_space() -> spaces.Box:
-    """One drone's eq. 2 observation: ``(13,)`` float32."""
-    return spaces.Box(-_OBS_HIGH, _OBS_HIGH, dtype=np.float32)
+def drone_observation_space(task: TaskConfig) -> spaces.Box:
+    """One drone's eq. 2 observation: ``(13,)`` float32 (``(16,)`` with ``observe_platform_velocity``)."""
+    high = _OBS_HIGH[: task.obs_per_drone]
+    return spaces.Box(-high, high, dtype=np.float32)
 
 
 def drone_action_space() -> spaces.Box:
@@ -82,9 +90,9 @@ def drone_action_space() -> spaces.Box:
     return spaces.Box(-1.0, 1.0, shape=(ACT_PER_DRONE,), dtype=np.float32)
 
 
-def centralised_observation_space(num_drones: int) -> spaces.Box:
-    """The paper's flattened input: ``(13 N,)`` float32."""
-    high = np.tile(_OBS_HIGH, num_drones)
+def centralised_observation_space(task: TaskConfig) -> spaces.Box:
+    """The paper's flattened input: ``(13 N,)`` float32 (``(16 N,)`` with ``observe_platform_velocity``)."""
+    high = np.tile(_OBS_HIGH[: task.obs_per_drone], task.num_drones)
     return spaces.Box(-high, high, dtype=np.float32)
 
 

@@ -18,8 +18,9 @@ class SwarmParallelEnv(ParallelEnv):
     """Decentralised view of a swarm landing: agents ``drone_0 .. drone_{N-1}``.
 
     Observation of agent ``i``: its own ``(13,)`` eq. 2 vector (position relative to its pad,
-    quaternion, velocity relative to the platform, angular velocity). Action: ``(3,)`` normalised
-    velocity. Reward of agent ``i``: ``r_t^i + r^c + K`` (its own eq. 5 term plus the shared
+    quaternion, velocity relative to the platform, angular velocity; ``(16,)`` with the platform
+    velocity when ``TaskConfig.observe_platform_velocity``). Action: ``(3,)`` normalised velocity.
+    Reward of agent ``i``: ``r_t^i + r^c + K`` (its own eq. 5 term plus the shared
     collision penalty and final bonus), so the agents' rewards add up to more than eq. 4's
     ``R_t`` whenever a shared term is paid. All agents stay in the episode until it ends for
     the swarm; a landed drone ignores its actions.
@@ -35,7 +36,7 @@ class SwarmParallelEnv(ParallelEnv):
         self.num_drones = simulator.task.num_drones
         self.possible_agents = [f"drone_{i}" for i in range(self.num_drones)]
         self.agents: list[str] = []
-        self._obs_space = drone_observation_space()
+        self._obs_space = drone_observation_space(simulator.task)
         self._act_spaces = {a: drone_action_space() for a in self.possible_agents}
 
     def observation_space(self, agent: str) -> spaces.Box:

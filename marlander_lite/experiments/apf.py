@@ -124,14 +124,16 @@ def split_observation(obs: np.ndarray, num_drones: int) -> tuple[np.ndarray, np.
     """``p`` and ``v`` of every drone from a centralised observation ``(13 N,)``: each ``(N, 3)``.
 
     ``p`` is the position relative to the drone's goal (m), ``v`` the velocity relative to the
-    platform (m/s), as laid out by eq. 2.
+    platform (m/s), as laid out by eq. 2. A ``(16 N,)`` observation (with the platform velocity,
+    ``TaskConfig.observe_platform_velocity``) is read the same way.
     """
     o = np.asarray(obs, dtype=np.float64)
-    if o.shape != (OBS_PER_DRONE * num_drones,):
+    sizes = (OBS_PER_DRONE * num_drones, (OBS_PER_DRONE + 3) * num_drones)
+    if o.ndim != 1 or o.shape[0] not in sizes:
         raise ValueError(
-            f"Observation has shape {o.shape}; expected ({OBS_PER_DRONE * num_drones},) for {num_drones} drone(s)."
+            f"Observation has shape {o.shape}; expected ({sizes[0]},) or ({sizes[1]},) for {num_drones} drone(s)."
         )
-    per_drone = o.reshape(num_drones, OBS_PER_DRONE)
+    per_drone = o.reshape(num_drones, -1)
     return per_drone[:, 0:3], per_drone[:, 7:10]
 
 

@@ -26,7 +26,7 @@ from marlander_lite.experiments import apf
 from marlander_lite.experiments.apf import APFConfig
 from marlander_lite.platforms import PlateGeometry
 from marlander_lite.policy_file import MLPPolicy, load_policy
-from marlander_lite.task import ACT_PER_DRONE, OBS_PER_DRONE, TaskConfig
+from marlander_lite.task import ACT_PER_DRONE, TaskConfig
 
 ControllerName = Literal["marlander", "baseline", "single-agent-apf"]
 CONTROLLERS: tuple[str, ...] = get_args(ControllerName)
@@ -161,7 +161,7 @@ class SingleAgentAPFController:
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         n = self.task.num_drones
-        per_drone = np.asarray(obs).reshape(n, OBS_PER_DRONE)
+        per_drone = np.asarray(obs).reshape(n, -1)
         actions = self.policy.act(per_drone)  # (N, 3): the same policy on each drone's own observation
         p, _ = apf.split_observation(obs, n)
         actions = actions + apf.repulsion_velocity(p, self.offsets, self.config) / self.task.max_speed

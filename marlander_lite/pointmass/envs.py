@@ -2,31 +2,18 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from types import MappingProxyType
 from typing import Any
 
-import numpy as np
-from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvStepReturn
-
 from marlander_lite.envs.gym_env import SwarmLandingEnv
-from marlander_lite.envs.options import (
-    COMMON_OPTIONS,
-    build_configs,
-    centralised_action_space,
-    centralised_observation_space,
-    policy_input,
-    reject_unknown,
-)
+from marlander_lite.envs.options import COMMON_OPTIONS, build_configs, check_num_envs, reject_unknown
 from marlander_lite.envs.parallel_env import SwarmParallelEnv
-from marlander_lite.episodes import LandingEpisodes
+from marlander_lite.envs.vec_env import LandingVecEnv
 from marlander_lite.platforms import PlatformConfig
 from marlander_lite.pointmass.simulator import PointMassParams, PointMassSwarm
 from marlander_lite.sensing import SensingConfig
 from marlander_lite.task import TaskConfig
 
 POINTMASS_OPTIONS = (*COMMON_OPTIONS, "dynamics")
-_NO_INFO = MappingProxyType({})
 
 
 def _params(dynamics: PointMassParams | dict | None) -> PointMassParams | None:
@@ -88,7 +75,7 @@ class PointMassLandingEnv(SwarmLandingEnv):
         self,
         num_drones: int = 2,
         platform: str | PlatformConfig = "static-floor",
-        platform_speed: float | None = None,
+        platform_speed: float | tuple[float, float] | None = None,
         task: TaskConfig | dict | None = None,
         sensing: SensingConfig | str | None = None,
         dynamics: PointMassParams | dict | None = None,
@@ -104,7 +91,7 @@ class PointMassLandingEnv(SwarmLandingEnv):
 def pointmass_parallel_env(
     num_drones: int = 2,
     platform: str | PlatformConfig = "static-floor",
-    platform_speed: float | None = None,
+    platform_speed: float | tuple[float, float] | None = None,
     task: TaskConfig | dict | None = None,
     sensing: SensingConfig | str | None = None,
     dynamics: PointMassParams | dict | None = None,
@@ -116,16 +103,10 @@ def pointmass_parallel_env(
     return SwarmParallelEnv(PointMassSwarm(task_config, platform_config, 1, _params(dynamics)), sensing_config)
 
 
-class PointMassVecEnv(VecEnv):
-    """Natively batched stable-baselines3 ``VecEnv``: ``num_envs`` swarms in one set of numpy arrays.
-
-    Same task, spaces and options as :class:`PointMassLandingEnv`. Stepping costs a fixed number
-    of numpy operations whatever ``num_envs`` is. Finished environments are reset at once, the
-    SB3 way: the returned observation is the new episode's first one, and ``infos[i]`` holds
-    ``terminal_observation``, ``TimeLimit.truncated``, ``is_success``, ``landing_error`` (mean
-    over the drones that landed, m; NaN if none did), ``landing_time`` (s until the last drone
-    landed; NaN unless all did), ``min_separation`` (m) and ``episode`` (``r``, ``l``, ``t``), so no
-    ``VecMonitor`` is needed. ``infos`` of unfinished envs are one shared, read-only empty mapping.
+class PointMassVecEnv(LandingVecEnv):
+    """Natively batched stable-baselines3 ``VecEnv`` of the point-mass swarm: ``num_envs`` swarms in one
+    set of numpy arrays, no Python loop over environments. Same task, spaces and options as
+    :class:`PointMassLandingEnv`; infos as :class:`~marlander_lite.envs.vec_env.LandingVecEnv`.
     """
 
     def __init__(
@@ -133,7 +114,7 @@ class PointMassVecEnv(VecEnv):
         num_envs: int = 1,
         num_drones: int = 2,
         platform: str | PlatformConfig = "static-floor",
-        platform_speed: float | None = None,
+        platform_speed: float | tuple[float, float] | None = None,
         task: TaskConfig | dict | None = None,
         sensing: SensingConfig | str | None = None,
         dynamics: PointMassParams | dict | None = None,
@@ -141,93 +122,9 @@ class PointMassVecEnv(VecEnv):
         **unknown: Any,
     ) -> None:
         reject_unknown(unknown, (*POINTMASS_OPTIONS, "num_envs", "seed"), "PointMassVecEnv")
-        if isinstance(num_envs, bool) or not isinstance(num_envs, int | np.integer) or num_envs < 1:
-            raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}.")
+        check_num_envs(num_envs)
         task_config, platform_config, sensing_config = build_configs(
             num_drones, platform, platform_speed, task, sensing
         )
-        self.task, self.platform, self.render_mode = task_config, platform_config, None
-        self.simulator = PointMassSwarm(task_config, platform_config, int(num_envs), _params(dynamics))
-        self.episodes = LandingEpisodes(self.simulator, sensing_config, seed)
-        self._actions: np.ndarray | None = None
-        self._elapsed = 0.0
-        super().__init__(int(num_envs), centralised_observation_space(num_drones), centralised_action_space(num_drones))
-        if seed is not None:
-            self.seed(seed)
-
-    def reset(self) -> np.ndarray:
-        if self._seeds[0] is not None:
-            self.episodes.seed(self._seeds[0])
-        self._reset_seeds()
-        self._reset_options()
-        return policy_input(self.episodes.reset())
-
-    def step_async(self, actions: np.ndarray) -> None:
-        self._actions = np.asarray(actions)
-
-    def step_wait(self) -> VecEnvStepReturn:
-        if self._actions is None:
-            raise RuntimeError("step_wait() called without step_async().")
-        outcome = self.episodes.step(self._actions)
-        self._actions = None
-        self._elapsed += self.task.dt
-        obs = policy_input(outcome.obs)
-        done = outcome.done
-        # Unfinished envs share one immutable empty mapping: building 4096 fresh dicts per step
-        # would cost more than the physics, and immutability means no wrapper can pollute it.
-        infos: list[Any] = [_NO_INFO] * self.num_envs
-        if done.any():
-            ids = np.flatnonzero(done)
-            landed = outcome.landed[ids]
-            count = np.maximum(landed.sum(axis=1), 1)
-            mean_error = np.where(
-                landed.any(axis=1), np.where(landed, outcome.landing_error[ids], 0.0).sum(axis=1) / count, np.nan
-            )
-            last_landing = np.where(
-                landed.all(axis=1), np.nanmax(np.where(landed, outcome.landing_time[ids], -1.0), axis=1), np.nan
-            )
-            columns = zip(
-                ids.tolist(),
-                obs[ids],
-                outcome.truncated[ids].tolist(),
-                outcome.success[ids].tolist(),
-                mean_error.tolist(),
-                last_landing.tolist(),
-                outcome.min_separation[ids].tolist(),
-                outcome.episode_return[ids].tolist(),
-                outcome.episode_length[ids].tolist(),
-                strict=True,
-            )
-            for i, terminal, truncated, success, error, landing_time, separation, ret, length in columns:
-                infos[i] = {
-                    "terminal_observation": terminal,
-                    "TimeLimit.truncated": truncated,
-                    "is_success": success,
-                    "landing_error": error,
-                    "landing_time": landing_time,
-                    "min_separation": separation,
-                    "episode": {"r": ret, "l": length, "t": self._elapsed},
-                }
-            obs[ids] = policy_input(self.episodes.reset(ids))
-        return obs, outcome.reward.astype(np.float32), done, infos
-
-    def close(self) -> None:
-        self.simulator.close()
-
-    def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
-        return [getattr(self, attr_name) for _ in self._get_indices(indices)]
-
-    def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
-        setattr(self, attr_name, value)
-
-    def env_method(
-        self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **method_kwargs: Any
-    ) -> list[Any]:
-        method = getattr(self, method_name)
-        return [method(*method_args, **method_kwargs) for _ in self._get_indices(indices)]
-
-    def env_is_wrapped(self, wrapper_class: type, indices: VecEnvIndices = None) -> list[bool]:
-        return [False for _ in self._get_indices(indices)]
-
-    def get_images(self) -> Sequence[np.ndarray | None]:
-        return [None for _ in range(self.num_envs)]
+        simulator = PointMassSwarm(task_config, platform_config, int(num_envs), _params(dynamics))
+        super().__init__(simulator, sensing_config, seed)

@@ -298,6 +298,8 @@ class PointMassSwarm:
         resting = touching & ~first
         if resting.any():
             np.copyto(self.vel[..., 2], np.maximum(self.vel[..., 2], 0.0), where=resting)
+            # Without thrust, friction holds a resting drone where it is.
+            np.copyto(self.vel, 0.0, where=(resting & self.motors_stopped)[..., None])
         self.contact = np.where(
             touching, np.where(on_own_pad, task.CONTACT_OWN_PAD, task.CONTACT_OTHER), task.CONTACT_NONE
         ).astype(np.int8)

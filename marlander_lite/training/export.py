@@ -52,6 +52,7 @@ def export_policy(
         max_speed=task.max_speed,
         policy_hz=task.policy_hz,
         activation=activation,
+        obs_per_drone=task.obs_per_drone,
         hidden_sizes=hidden,
         normalize_observations=normalizer is not None and normalizer.norm_obs,
         obs_clip=float(normalizer.clip_obs) if normalizer is not None else 10.0,

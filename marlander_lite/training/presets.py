@@ -65,8 +65,11 @@ class TrainConfig:
     """Gradient clipping."""
     target_kl: float | None = None
     """Stop an update's epochs early beyond this KL (None: never)."""
-    log_std_init: float = -1.0
-    """Initial log standard deviation of the Gaussian actions: exp(-1) = 0.37 of max_speed."""
+    log_std_init: float = -2.0
+    """Initial log standard deviation of the Gaussian actions: exp(-2) = 0.14 of max_speed (0.4 m/s). SB3's default
+    (0, i.e. 3 m/s) makes a soft touchdown under 0.5 m/s a rare accident and stalls learning."""
+    reset_log_std: bool = False
+    """When fine-tuning (``init_from``), set the loaded policy's log standard deviation back to ``log_std_init``."""
     net_arch: tuple[int, ...] = (128, 128)
     """Hidden layers of the actor and, separately, of the critic."""
     activation: Activation = "relu"
@@ -75,6 +78,9 @@ class TrainConfig:
     """Standardise observations with running statistics (SB3 VecNormalize); exported with the policy."""
     normalize_rewards: bool = True
     """Scale rewards by a running estimate of the return's spread."""
+    obs_norm_epsilon: float = 0.01
+    """Floor added to each observation variance before standardising. An input that never varied in training
+    (yaw is always 0 in the point-mass) would otherwise be divided by ~1e-4 when it does vary (PyBullet, the lab)."""
     seed: int = 0
     """Seeds the environments, the network initialisation and the sampling."""
     init_from: str | None = None

@@ -75,12 +75,7 @@ class RunFiles:
 
 def task_config_of(config: TrainConfig) -> TaskConfig:
     """The :class:`TaskConfig` a training config resolves to."""
-    return build_configs(config.num_drones, config.platform, _fixed_speed(config), config.task, config.sensing)[0]
-
-
-def _fixed_speed(config: TrainConfig) -> float | None:
-    speed = config.platform_speed
-    return None if speed is None or isinstance(speed, tuple) else float(speed)
+    return build_configs(config.num_drones, config.platform, config.platform_speed, config.task, config.sensing)[0]
 
 
 def make_training_env(config: TrainConfig, num_envs: int | None = None, seed: int | None = None) -> VecEnv:
@@ -189,7 +184,11 @@ def train(
         env.training, env.norm_reward = True, config.normalize_rewards
     else:
         env = VecNormalize(
-            env, norm_obs=config.normalize_observations, norm_reward=config.normalize_rewards, gamma=config.gamma
+            env,
+            norm_obs=config.normalize_observations,
+            norm_reward=config.normalize_rewards,
+            gamma=config.gamma,
+            epsilon=config.obs_norm_epsilon,
         )
 
     # 2. The PPO model: the actor and critic are separate MLPs of the preset's shape.
