@@ -13,6 +13,9 @@ Four motions cover the paper's experiments (Fig. 7):
 ``moving-arc``       the UR10 base swings the plate within -pi/2..pi/2 at a constant tool speed
                      (Sec. IV-C: 0.2 to 0.5 m/s).
 
+Moving plates cruise at the tool speed and brake and speed up again at the ends of their path
+with a finite acceleration (:func:`shuttle`), as an arm executing linear moves does.
+
 The plate keeps its orientation (no yaw) in every motion; this keeps the pads' relative
 positions fixed, which the centralised policy relies on to tell where the other drones are.
 All positions are world-frame metres, ``z`` up; the plate position is the centre of its top face.
@@ -87,13 +90,17 @@ class PlatformConfig:
     geometry: PlateGeometry = field(default_factory=PlateGeometry)
     """Plate and pad sizes."""
     elevated_height: tuple[float, float] = (0.5, 1.0)
-    """Range of the plate's top height when held by the UR10 (m), drawn uniformly per episode."""
+    """Range of the plate's top height when held by the UR10 (m), drawn uniformly per episode. A range that
+    starts at the plate thickness (on the floor) lets one training run cover floor and UR10 alike."""
     linear_stroke: float = 1.0
     """Length of the straight back-and-forth path of ``moving-linear`` (m)."""
     arc_radius: float = 0.9
     """Distance of the plate from the UR10 base axis in ``moving-arc`` (m); the UR10 reaches 1.3 m."""
     arc_half_angle: float = math.pi / 2
     """The base swings within ``[-arc_half_angle, +arc_half_angle]`` (rad), as in the paper."""
+    reversal_acceleration: float = 1.0
+    """Tool acceleration (m/s^2) with which the arm speeds up and brakes at the ends of a stroke or swing; the
+    paper does not say, 1 m/s^2 is a moderate UR10 setting. It keeps the reversal of a 0.5 m/s move at 1 s."""
 
     def __post_init__(self) -> None:
         if self.kind not in PLATFORM_KINDS:
@@ -111,10 +118,15 @@ class PlatformConfig:
                     f"use one of {MOVING_KINDS} for a moving platform, or leave the speed out."
                 )
         lo, hi = self.elevated_height
-        if not 0 < lo <= hi:
-            raise ValueError(f"elevated_height must be (low, high) with 0 < low <= high, got {self.elevated_height}.")
+        if not self.geometry.plate_thickness <= lo <= hi:
+            raise ValueError(
+                f"elevated_height must be (low, high) with {self.geometry.plate_thickness} m (the plate on the floor) "
+                f"<= low <= high, got {self.elevated_height}."
+            )
         if self.linear_stroke <= 0 or self.arc_radius <= 0 or not 0 < self.arc_half_angle <= math.pi:
             raise ValueError("linear_stroke and arc_radius must be > 0 m and arc_half_angle in (0, pi].")
+        if not (np.isfinite(self.reversal_acceleration) and self.reversal_acceleration > 0):
+            raise ValueError(f"reversal_acceleration must be > 0 m/s^2, got {self.reversal_acceleration!r}.")
 
     @property
     def speed_range(self) -> tuple[float, float]:
@@ -140,10 +152,34 @@ class PlatformConfig:
         return self.kind in MOVING_KINDS
 
 
-def _triangle(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Triangle wave of period 2 in ``u`` going 0 -> 1 -> 0, and the sign of its slope."""
-    m = np.mod(u, 2.0)
-    return 1.0 - np.abs(m - 1.0), np.where(m < 1.0, 1.0, -1.0)
+def shuttle(
+    t: np.ndarray, phase: np.ndarray, length: float, speed: np.ndarray, accel: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Back-and-forth motion along ``[0, length]`` with a trapezoidal speed profile.
+
+    Each leg accelerates at ``accel`` (m/s^2) to ``speed`` (m/s), cruises, and brakes at ``accel``
+    to a stop at the far end, the way an industrial arm executes a linear move. ``phase`` in
+    ``[0, 2)`` says where in the cycle each env is at ``t = 0`` (one unit per leg). Returns the
+    position along the path (m) and its rate (m/s), each shaped like ``t``.
+    """
+    speed = np.minimum(speed, np.sqrt(accel * length))  # short paths never reach full speed
+    moving = speed > 1e-9
+    s = np.where(moving, speed, 1.0)
+    ramp = s / accel  # time to reach full speed
+    leg = length / s + ramp  # duration of one leg, both ramps included
+    tau = np.mod(t + phase * leg, 2.0 * leg)
+    back = tau >= leg
+    tau = np.where(back, tau - leg, tau)
+    to_end = leg - tau
+    u = np.where(
+        tau < ramp,
+        0.5 * accel * tau**2,
+        np.where(to_end < ramp, length - 0.5 * accel * to_end**2, 0.5 * s * ramp + s * (tau - ramp)),
+    )
+    rate = np.where(tau < ramp, accel * tau, np.where(to_end < ramp, accel * to_end, s))
+    u = np.where(back, length - u, u)
+    rate = np.where(back, -rate, rate)
+    return np.where(moving, u, 0.5 * length), np.where(moving, rate, 0.0)
 
 
 class PlatformMotion:
@@ -208,19 +244,18 @@ class PlatformMotion:
         vel = np.zeros_like(pos)
         phase, heading = self.phase[sel], self.heading[sel]
         if cfg.kind == "moving-linear":
-            tri, slope = _triangle(phase + t * speed / cfg.linear_stroke)
+            u, rate = shuttle(t, phase, cfg.linear_stroke, speed, cfg.reversal_acceleration)
             cos, sin = np.cos(heading), np.sin(heading)
-            along = cfg.linear_stroke * (tri - 0.5)
+            along = u - 0.5 * cfg.linear_stroke
             pos[:, 0] += cos * along
             pos[:, 1] += sin * along
-            vel[:, 0], vel[:, 1] = cos * speed * slope, sin * speed * slope
+            vel[:, 0], vel[:, 1] = cos * rate, sin * rate
         elif cfg.kind == "moving-arc":
-            span = 2.0 * cfg.arc_half_angle
-            omega = speed / cfg.arc_radius
-            tri, slope = _triangle(phase + t * omega / span)
-            theta = heading + cfg.arc_half_angle * (2.0 * tri - 1.0)
+            arc = 2.0 * cfg.arc_half_angle * cfg.arc_radius
+            u, rate = shuttle(t, phase, arc, speed, cfg.reversal_acceleration)
+            theta = heading - cfg.arc_half_angle + u / cfg.arc_radius
             cos, sin = np.cos(theta), np.sin(theta)
             pos[:, 0] += cfg.arc_radius * cos
             pos[:, 1] += cfg.arc_radius * sin
-            vel[:, 0], vel[:, 1] = -sin * speed * slope, cos * speed * slope
+            vel[:, 0], vel[:, 1] = -sin * rate, cos * rate
         return pos, vel

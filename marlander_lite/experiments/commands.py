@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from marlander_lite.experiments import figures, includes, tables
-from marlander_lite.experiments.controllers import CONTROLLERS
+from marlander_lite.experiments.controllers import CONTROLLERS, PAPER_CONTROLLERS
 from marlander_lite.experiments.protocol import (
     CONDITION_NAMES,
     SENSING_NAMES,
@@ -84,8 +84,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--controllers",
         type=_choices(CONTROLLERS, "controller(s)"),
-        default=CONTROLLERS,
-        help=f"comma-separated, from {', '.join(CONTROLLERS)} (default all)",
+        default=PAPER_CONTROLLERS,
+        help=f"comma-separated, from {', '.join(CONTROLLERS)} (default: the paper's {', '.join(PAPER_CONTROLLERS)})",
     )
     p.add_argument(
         "--conditions",
@@ -99,8 +99,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0, help="base seed of the trials (default 0)")
     p.add_argument("--sensing", choices=SENSING_NAMES, default="vicon", help="observation model (default vicon)")
     p.add_argument("--time-limit", type=float, default=30.0, help="seconds before a trial times out (default 30)")
-    p.add_argument("--marlander-policy", type=Path, help="centralised policy file (default data/policies/quick-cpu)")
-    p.add_argument("--single-agent-policy", type=Path, help="1-drone policy file (default data/policies/single-agent)")
+    p.add_argument("--marlander-policy", type=Path, help="centralised policy file (default: the shipped one)")
+    p.add_argument("--single-agent-policy", type=Path, help="1-drone policy file (default: the shipped one)")
+    p.add_argument("--marlander-plus-policy", type=Path, help="policy that observes the platform velocity")
     p.add_argument("--out", type=Path, help="results folder (default data/results/<simulator>[-quick])")
     p.add_argument("--doc", type=Path, help="document whose include blocks to refresh (default docs/reproduction.md)")
     p.add_argument("--no-doc", action="store_true", help="do not touch the document")
@@ -116,6 +117,8 @@ def config_from_args(args: argparse.Namespace) -> ProtocolConfig:
         policies["marlander"] = args.marlander_policy
     if args.single_agent_policy is not None:
         policies["single-agent-apf"] = args.single_agent_policy
+    if args.marlander_plus_policy is not None:
+        policies["marlander-plus"] = args.marlander_plus_policy
     config = ProtocolConfig(
         simulator=args.simulator,
         controllers=args.controllers,
@@ -216,13 +219,18 @@ def write_report(records: list[TrialRecord], config: ProtocolConfig, out: Path, 
 def command_line(config: ProtocolConfig, out: Path) -> str:
     """The ``marlander reproduce`` command that repeats ``config`` into ``out``."""
     parts = ["marlander reproduce", f"--simulator {config.simulator}"]
-    if config.controllers != CONTROLLERS:
+    if config.controllers != PAPER_CONTROLLERS:
         parts.append("--controllers " + ",".join(config.controllers))
     if config.conditions != CONDITION_NAMES:
         parts.append("--conditions " + ",".join(config.conditions))
     parts += [f"--trials {config.trials}", f"--seed {config.seed}", f"--sensing {config.sensing}"]
     parts += [f"--time-limit {config.time_limit_s:g}", f"--workers {config.workers}"]
-    for flag, name in (("--marlander-policy", "marlander"), ("--single-agent-policy", "single-agent-apf")):
+    flags = (
+        ("--marlander-policy", "marlander"),
+        ("--single-agent-policy", "single-agent-apf"),
+        ("--marlander-plus-policy", "marlander-plus"),
+    )
+    for flag, name in flags:
         if name in config.policy_paths:
             parts.append(f"{flag} {config.policy_paths[name]}")
     return " ".join([*parts, f"--out {out}"])

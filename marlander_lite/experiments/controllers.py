@@ -25,22 +25,36 @@ import numpy as np
 from marlander_lite.experiments import apf
 from marlander_lite.experiments.apf import APFConfig
 from marlander_lite.platforms import PlateGeometry
-from marlander_lite.policy_file import MLPPolicy, load_policy
-from marlander_lite.task import ACT_PER_DRONE, TaskConfig
+from marlander_lite.policy_file import MLPPolicy, load_policy, read_contract
+from marlander_lite.task import ACT_PER_DRONE, OBS_PER_DRONE, TaskConfig
 
-ControllerName = Literal["marlander", "baseline", "single-agent-apf"]
+ControllerName = Literal["marlander", "baseline", "single-agent-apf", "marlander-plus"]
 CONTROLLERS: tuple[str, ...] = get_args(ControllerName)
+PAPER_CONTROLLERS: tuple[str, ...] = ("marlander", "baseline", "single-agent-apf")
+"""The controllers the paper compares; ``marlander-plus`` is ours (beyond the paper)."""
 CONTROLLER_LABELS: dict[str, str] = {
     "marlander": "MARLander (centralised MARL policy)",
     "baseline": "Baseline (PID + APF)",
     "single-agent-apf": "Single-agent RL + APF (MorphoLander-style)",
+    "marlander-plus": "MARLander + platform velocity (ours, beyond the paper)",
 }
 """How tables and figures name each controller."""
-DEFAULT_POLICIES: dict[str, Path] = {
-    "marlander": Path("data/policies/quick-cpu.safetensors"),
-    "single-agent-apf": Path("data/policies/single-agent.safetensors"),
+POLICY_CONTROLLERS: tuple[str, ...] = ("marlander", "single-agent-apf", "marlander-plus")
+"""Controllers that fly a policy file."""
+DEFAULT_POLICIES: dict[str, dict[str, Path]] = {
+    "pointmass": {
+        "marlander": Path("data/policies/paper.safetensors"),
+        "single-agent-apf": Path("data/policies/single-agent.safetensors"),
+        "marlander-plus": Path("data/policies/moving.safetensors"),
+    },
+    "crazyflie": {
+        "marlander": Path("data/policies/crazyflie-finetune.safetensors"),
+        "single-agent-apf": Path("data/policies/single-agent-crazyflie-finetune.safetensors"),
+        "marlander-plus": Path("data/policies/moving-crazyflie-finetune.safetensors"),
+    },
 }
-"""Policy files the lead ships; ``--marlander-policy`` / ``--single-agent-policy`` override them."""
+"""Shipped policy files per simulator and controller (the PyBullet ones are fine-tuned in PyBullet);
+``--marlander-policy``, ``--single-agent-policy`` and ``--marlander-plus-policy`` override them."""
 
 
 class Controller(Protocol):
@@ -60,12 +74,11 @@ class MARLanderController:
 
     Args:
         policy: a loaded N-drone policy (:func:`~marlander_lite.policy_file.load_policy`).
+        name: ``marlander``, or ``marlander-plus`` for a policy that also observes the platform velocity.
     """
 
-    name = "marlander"
-
-    def __init__(self, policy: MLPPolicy) -> None:
-        self.policy = policy
+    def __init__(self, policy: MLPPolicy, name: str = "marlander") -> None:
+        self.policy, self.name = policy, name
 
     def reset(self) -> None:
         """The policy is a feed-forward network: nothing to reset."""
@@ -175,19 +188,27 @@ class ControllerSpec:
     name: ControllerName
     """One of ``CONTROLLERS``."""
     policy_path: Path | None = None
-    """Policy file for ``marlander`` / ``single-agent-apf``; the default in ``DEFAULT_POLICIES`` if None."""
+    """Policy file of a policy controller; the simulator's default in ``DEFAULT_POLICIES`` if None."""
     apf: APFConfig = field(default_factory=APFConfig)
     """Gains of the baseline, and the repulsion of ``single-agent-apf``."""
 
+    simulator: str = "pointmass"
+    """Simulator whose default policy files to use."""
+
     def __post_init__(self) -> None:
         check_controller_name(self.name)
+
+    def observes_platform_velocity(self) -> bool:
+        """Whether this controller's policy file asks for the platform velocity in the observation."""
+        path = self.resolved_policy_path
+        return path is not None and path.is_file() and read_contract(path).obs_per_drone > OBS_PER_DRONE
 
     @property
     def resolved_policy_path(self) -> Path | None:
         """The policy file this controller loads (None for the baseline)."""
         if self.name == "baseline":
             return None
-        return Path(self.policy_path) if self.policy_path is not None else DEFAULT_POLICIES[self.name]
+        return Path(self.policy_path) if self.policy_path is not None else DEFAULT_POLICIES[self.simulator][self.name]
 
 
 def check_controller_name(name: str) -> None:
@@ -207,11 +228,11 @@ def build_controller(spec: ControllerSpec, task: TaskConfig, geometry: PlateGeom
     path = spec.resolved_policy_path
     assert path is not None
     if not path.is_file():
-        preset = "single-agent" if spec.name == "single-agent-apf" else "quick-cpu"
+        preset = {"single-agent-apf": "single-agent", "marlander-plus": "moving"}.get(spec.name, "paper")
         raise FileNotFoundError(
             f"The {spec.name!r} controller needs the policy file {path}, which does not exist. Train one "
             f"(training preset {preset!r}) or pass its path; the baseline needs none (--controllers baseline)."
         )
-    if spec.name == "marlander":
-        return MARLanderController(load_policy(path, task))
+    if spec.name in ("marlander", "marlander-plus"):
+        return MARLanderController(load_policy(path, task), name=spec.name)
     return SingleAgentAPFController(load_policy(path, task, per_drone=True), task, spec.apf, geometry)

@@ -32,6 +32,8 @@ from marlander_lite.episodes import LandingEpisodes
 from marlander_lite.experiments.apf import APFConfig
 from marlander_lite.experiments.controllers import (
     CONTROLLERS,
+    PAPER_CONTROLLERS,
+    POLICY_CONTROLLERS,
     Controller,
     ControllerName,
     ControllerSpec,
@@ -66,6 +68,7 @@ PAPER_TRIALS: dict[str, dict[str, int]] = {
     "marlander": {"static": 12, "moving": 8},
     "baseline": {"static": 10, "moving": 10},
     "single-agent-apf": {"static": 12, "moving": 8},
+    "marlander-plus": {"static": 12, "moving": 8},
 }
 """Trials per controller and group in the paper: 12 static (6 floor + 6 UR10) and 8 moving for
 MARLander (Sec. IV-B/C), 10 each for the baseline (Sec. IV-D). The paper gives no count for
@@ -123,8 +126,8 @@ class ProtocolConfig:
 
     simulator: SimulatorName = "pointmass"
     """``pointmass`` (fast) or ``crazyflie`` (PyBullet, cascaded PID)."""
-    controllers: tuple[ControllerName, ...] = CONTROLLERS  # type: ignore[assignment]
-    """Which controllers to fly."""
+    controllers: tuple[ControllerName, ...] = PAPER_CONTROLLERS  # type: ignore[assignment]
+    """Which controllers to fly (default: the paper's three)."""
     conditions: tuple[ConditionName, ...] = CONDITION_NAMES  # type: ignore[assignment]
     """Which conditions to fly them on."""
     trials: int | Literal["paper"] = 100
@@ -140,7 +143,8 @@ class ProtocolConfig:
     num_drones: int = 2
     """Drones per swarm (the paper flies 2)."""
     policy_paths: dict[str, Path] = field(default_factory=dict)
-    """Policy file per controller name; defaults: :data:`~marlander_lite.experiments.controllers.DEFAULT_POLICIES`."""
+    """Policy file per controller name; defaults: the simulator's in
+    :data:`~marlander_lite.experiments.controllers.DEFAULT_POLICIES`."""
     apf: APFConfig = field(default_factory=APFConfig)
     """Gains of the PID + APF baseline (and the repulsion of single-agent + APF)."""
     workers: int = 2
@@ -169,20 +173,31 @@ class ProtocolConfig:
             raise ValueError(f"time_limit_s must be > 0 s, got {self.time_limit_s!r}.")
         if self.workers < 1 or self.block_size < 1:
             raise ValueError(f"workers and block_size must be >= 1, got {self.workers} and {self.block_size}.")
-        unknown = sorted(set(self.policy_paths) - {"marlander", "single-agent-apf"})
+        unknown = sorted(set(self.policy_paths) - set(POLICY_CONTROLLERS))
         if unknown:
-            raise ValueError(f"policy_paths has unknown controller(s) {unknown}; allowed: marlander, single-agent-apf.")
+            raise ValueError(
+                f"policy_paths has unknown controller(s) {unknown}; allowed: {', '.join(POLICY_CONTROLLERS)}."
+            )
 
-    def task(self) -> TaskConfig:
-        """The task of every trial: the defaults with ``num_drones`` and the time limit."""
-        return TaskConfig(num_drones=self.num_drones, episode_seconds=self.time_limit_s)
+    def task(self, controller_name: str | None = None) -> TaskConfig:
+        """The task of every trial: the defaults with ``num_drones`` and the time limit.
+
+        With ``controller_name``, the observation also carries the platform velocity if that
+        controller's policy file asks for it (``TaskConfig.observe_platform_velocity``). The trials'
+        starts do not depend on it.
+        """
+        observe = controller_name is not None and self.spec(controller_name).observes_platform_velocity()
+        return TaskConfig(
+            num_drones=self.num_drones, episode_seconds=self.time_limit_s, observe_platform_velocity=observe
+        )
 
     def sensing_config(self) -> SensingConfig:
         return SensingConfig.vicon() if self.sensing == "vicon" else SensingConfig()
 
     def spec(self, controller_name: str) -> ControllerSpec:
         """The picklable description of one controller of this run."""
-        return ControllerSpec(controller_name, self.policy_paths.get(controller_name), self.apf)  # type: ignore[arg-type]
+        path = self.policy_paths.get(controller_name)
+        return ControllerSpec(controller_name, path, self.apf, self.simulator)  # type: ignore[arg-type]
 
     def trial_counts(self, controller_name: str) -> dict[str, int]:
         """Trials of ``controller_name`` per selected condition.
@@ -248,15 +263,16 @@ SIMULATOR_CLASSES: dict[str, str] = {
 """The :class:`~marlander_lite.episodes.Simulator` of each back end, imported on first use (PyBullet only if asked)."""
 
 
-def make_episodes(config: ProtocolConfig, cond: Condition) -> LandingEpisodes:
+def make_episodes(config: ProtocolConfig, cond: Condition, controller_name: str | None = None) -> LandingEpisodes:
     """A one-swarm :class:`LandingEpisodes` of ``config.simulator`` for ``cond``, with ``config``'s sensing.
 
     The simulator is built as ``Swarm(task, platform, num_envs=1)`` with its default physics; the
-    episodes are the same MDP the gym, SB3 and PettingZoo faces wrap.
+    episodes are the same MDP the gym, SB3 and PettingZoo faces wrap. ``controller_name`` picks the
+    observation layout its policy asks for (:meth:`ProtocolConfig.task`).
     """
     module, name = SIMULATOR_CLASSES[config.simulator].split(":")
     swarm = getattr(importlib.import_module(module), name)
-    simulator = swarm(config.task(), cond.platform(), 1)
+    simulator = swarm(config.task(controller_name), cond.platform(), 1)
     return LandingEpisodes(simulator, config.sensing_config())
 
 
@@ -298,7 +314,7 @@ def fly_trial(
 def run_unit(config: ProtocolConfig, unit: WorkUnit) -> list[TrialRecord]:
     """Fly one block of trials in a fresh environment (called in a worker process)."""
     cond = condition(unit.condition)
-    episodes = make_episodes(config, cond)
+    episodes = make_episodes(config, cond, unit.spec.name)
     try:
         controller = build_controller(unit.spec, episodes.task, cond.platform().geometry)
         records = []
@@ -325,9 +341,8 @@ def plan(config: ProtocolConfig) -> list[WorkUnit]:
 
 def check_policies(config: ProtocolConfig) -> None:
     """Build each controller once here, so a missing or unfit policy file fails before any work starts."""
-    task = config.task()
     for name in config.controllers:
-        build_controller(config.spec(name), task)
+        build_controller(config.spec(name), config.task(name))
 
 
 def run_protocol(config: ProtocolConfig, progress: Callable[[int, int], Any] | None = None) -> list[TrialRecord]:
@@ -367,7 +382,7 @@ def _execute(config: ProtocolConfig, units: list[WorkUnit]) -> Iterator[list[Tri
 def record_trajectory(config: ProtocolConfig, controller_name: str, condition_name: str, trial: int = 0) -> Trajectory:
     """Re-fly one trial (same seed as in the tables) and record its trajectory (Fig. 7)."""
     cond = condition(condition_name)
-    episodes = make_episodes(config, cond)
+    episodes = make_episodes(config, cond, controller_name)
     try:
         controller = build_controller(config.spec(controller_name), episodes.task, cond.platform().geometry)
         _, trajectory = fly_trial(controller, episodes, trial_seed(config.seed, cond.name, trial), record=True)

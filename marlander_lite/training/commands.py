@@ -10,7 +10,7 @@ from pathlib import Path
 
 from marlander_lite.make import SIMULATORS
 from marlander_lite.platforms import PLATFORM_KINDS
-from marlander_lite.training.presets import PRESETS, describe_presets, get_preset
+from marlander_lite.training.presets import FINETUNE_PRESETS, PRESETS, describe_presets, get_preset
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -63,7 +63,7 @@ def _add_evaluation_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run_train(args: argparse.Namespace) -> int:
-    from marlander_lite.training.train import train
+    from marlander_lite.training.train import continue_from, train
 
     if args.list:
         print(describe_presets())
@@ -72,7 +72,12 @@ def run_train(args: argparse.Namespace) -> int:
     changes = {"simulator": args.env, "seed": args.seed, "total_steps": args.steps}
     config = config.replace(**{k: v for k, v in changes.items() if v is not None})
     if args.init_from:
-        config = config.replace(init_from=str(args.init_from))
+        config = continue_from(config, args.init_from)
+    elif args.preset in FINETUNE_PRESETS:
+        raise ValueError(
+            f"Preset {args.preset!r} continues a trained run: pass --init-from RUN_DIR "
+            "(a directory written by 'marlander train', e.g. data/runs/quick-cpu)."
+        )
     out = args.out or Path("runs") / f"{args.preset}-seed{config.seed}-{time.strftime('%Y%m%d-%H%M%S')}"
     print(f"Training preset {args.preset!r} on {config.simulator} for {config.total_steps:,} steps -> {out}")
     files = train(config, out, preset=args.preset, progress_bar=not args.no_progress)

@@ -63,7 +63,7 @@ def run_episodes(
     policy: MLPPolicy, simulator: str, episodes: int, seed: int, num_envs: int | None = None, **env_options: Any
 ) -> list[dict[str, Any]]:
     """The final info of the first ``episodes`` episodes of ``policy`` acting deterministically."""
-    num_envs = num_envs or min(episodes, 256 if simulator == "pointmass" else 2)
+    num_envs = num_envs or min(episodes, 256 if simulator == "pointmass" else 8)
     env = make_vec_env(simulator, num_envs=num_envs, seed=seed, num_drones=policy.contract.num_drones, **env_options)
     finished: list[dict[str, Any]] = []
     started = num_envs  # episodes begun so far: the env count at reset

@@ -31,6 +31,8 @@ class TrainConfig:
     """Platform motion during training (see ``marlander_lite.platforms``)."""
     platform_speed: float | tuple[float, float] | None = None
     """Tool speed of a moving platform (m/s); a (low, high) pair draws it per episode."""
+    platform_height: tuple[float, float] | None = None
+    """Plate top height range for UR10-held kinds (m); None keeps 0.5-1.0; (0.005, 1.0) covers the floor too."""
     sensing: str = "perfect"
     """``perfect`` or ``vicon`` (motion-capture noise and latency on observations)."""
     task: dict[str, Any] = field(default_factory=dict)
@@ -71,7 +73,9 @@ class TrainConfig:
     reset_log_std: bool = False
     """When fine-tuning (``init_from``), set the loaded policy's log standard deviation back to ``log_std_init``."""
     net_arch: tuple[int, ...] = (128, 128)
-    """Hidden layers of the actor and, separately, of the critic."""
+    """Hidden layers of the actor (the policy network of the paper's Fig. 3)."""
+    critic_arch: tuple[int, ...] | None = None
+    """Hidden layers of the separate critic; None: the same as the actor. The paper describes only the policy."""
     activation: Activation = "relu"
     """Hidden activation (the paper: ReLU)."""
     normalize_observations: bool = True
@@ -130,6 +134,10 @@ class TrainConfig:
         """Inverse of :meth:`to_dict` (JSON turns tuples into lists)."""
         values = dict(values)
         values["net_arch"] = tuple(values.get("net_arch", ()))
+        if values.get("critic_arch") is not None:
+            values["critic_arch"] = tuple(values["critic_arch"])
+        if isinstance(values.get("platform_height"), list):
+            values["platform_height"] = tuple(values["platform_height"])
         if isinstance(values.get("platform_speed"), list):
             values["platform_speed"] = tuple(values["platform_speed"])
         return cls().replace(**values)
@@ -138,24 +146,64 @@ class TrainConfig:
 PAPER_NET = (512, 512, 256, 128)
 """The paper's Fig. 3 network: fully connected ReLU layers 512, 512, 256, 128."""
 
+TRAINING_AIDS = {"spawn_near_pad_fraction": 0.25, "landing_tolerance": 0.03}
+"""A quarter of the episodes start near the pads, and a landing counts only within 3 cm of the pad centre;
+evaluation switches both off (``marlander_lite.training.evaluation``)."""
+
+_QUICK = TrainConfig(total_steps=4_000_000, sensing="vicon", task=dict(TRAINING_AIDS), dynamics={"randomization": 0.3})
+_FINETUNE = _QUICK.replace(
+    simulator="crazyflie",
+    dynamics={},
+    total_steps=3_000_000,
+    num_envs=32,
+    n_steps=128,
+    batch_size=1024,
+    learning_rate=1e-4,
+    log_std_init=-2.5,
+    reset_log_std=True,
+    platform="static-elevated",
+    platform_height=(0.005, 1.0),
+    task={"spawn_near_pad_fraction": 0.25, "landing_tolerance": 0.05},
+    torch_threads=1,
+    checkpoint_every=500_000,
+)
+_MOVING_PLATFORMS = {"platform": "moving-arc", "platform_speed": (0.0, 0.6), "platform_height": (0.005, 1.0)}
+
 PRESETS: dict[str, TrainConfig] = {
-    "quick-cpu": TrainConfig(),
-    "paper": TrainConfig(
+    "quick-cpu": _QUICK,
+    "paper": _QUICK.replace(
         total_steps=20_000_000,
         net_arch=PAPER_NET,
+        critic_arch=(256, 256),
         num_envs=512,
-        n_steps=64,
         batch_size=8192,
         n_epochs=4,
         lr_schedule="linear",
         checkpoint_every=2_000_000,
     ),
+    "crazyflie-finetune": _FINETUNE,
+    "moving": _QUICK.replace(
+        total_steps=8_000_000, task={**TRAINING_AIDS, "observe_platform_velocity": True}, **_MOVING_PLATFORMS
+    ),
+    "moving-crazyflie-finetune": _FINETUNE.replace(
+        task={**_FINETUNE.task, "observe_platform_velocity": True}, **_MOVING_PLATFORMS
+    ),
+    "single-agent": _QUICK.replace(
+        num_drones=1, total_steps=3_000_000, platform="static-elevated", platform_height=(0.005, 1.0)
+    ),
 }
 """Named presets; see :func:`describe_presets`."""
 
+FINETUNE_PRESETS = ("crazyflie-finetune", "moving-crazyflie-finetune")
+"""Presets that continue a trained run (``--init-from RUN``) rather than start from scratch."""
+
 PRESET_NOTES: dict[str, str] = {
-    "quick-cpu": "2 drones, static floor pad, point-mass, 128-128 ReLU: a landing policy in minutes on a laptop CPU.",
-    "paper": "The paper's set-up: 512-512-256-128 ReLU, 20 M steps, point-mass (about an hour or two on 2 cores).",
+    "quick-cpu": "2 drones, floor pad, point mass, 128-128 ReLU, 4 M steps: lands in minutes on a 2-core laptop.",
+    "paper": "the paper's 512-512-256-128 ReLU policy, 20 M steps, point mass (about 45 min on 2 cores).",
+    "crazyflie-finetune": "continue a quick-cpu/paper run in the PyBullet Crazyflie swarm, 3 M steps (~30 min).",
+    "moving": "beyond the paper: also observes the platform velocity; UR10 arcs at 0-0.6 m/s, floor to 1 m high.",
+    "moving-crazyflie-finetune": "continue a 'moving' run in the PyBullet Crazyflie swarm, 3 M steps (~30 min).",
+    "single-agent": "one drone (MorphoLander-style: applied per drone with APF repulsion), 3 M steps.",
 }
 
 
@@ -168,4 +216,4 @@ def get_preset(name: str) -> TrainConfig:
 
 def describe_presets() -> str:
     """One line per preset, for ``marlander train --list``."""
-    return "\n".join(f"{name:<20} {PRESET_NOTES.get(name, '')}" for name in PRESETS)
+    return "\n".join(f"{name:<26} {PRESET_NOTES.get(name, '')}" for name in PRESETS)

@@ -35,6 +35,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 import marlander_lite
 from marlander_lite.envs.options import build_configs
 from marlander_lite.make import make_vec_env
+from marlander_lite.platforms import PlatformConfig
 from marlander_lite.task import TaskConfig
 from marlander_lite.training.export import export_policy
 from marlander_lite.training.presets import TrainConfig
@@ -80,10 +81,15 @@ def task_config_of(config: TrainConfig) -> TaskConfig:
 
 def make_training_env(config: TrainConfig, num_envs: int | None = None, seed: int | None = None) -> VecEnv:
     """The vectorised environment a config trains on (without normalisation)."""
+    platform: str | PlatformConfig = config.platform
+    speed = config.platform_speed
+    if config.platform_height is not None:
+        platform = PlatformConfig(kind=config.platform, speed=speed, elevated_height=config.platform_height)  # type: ignore[arg-type]
+        speed = None
     options: dict[str, Any] = {
         "num_drones": config.num_drones,
-        "platform": config.platform,
-        "platform_speed": config.platform_speed,
+        "platform": platform,
+        "platform_speed": speed,
         "task": config.task,
         "sensing": config.sensing,
     }
@@ -210,9 +216,9 @@ def train(
             RunFiles(Path(config.init_from)).model, env=env, device="cpu", seed=config.seed, custom_objects=hyper
         )
     else:
-        net = list(config.net_arch)
+        critic = config.net_arch if config.critic_arch is None else config.critic_arch
         policy_kwargs = {
-            "net_arch": {"pi": net, "vf": net},
+            "net_arch": {"pi": list(config.net_arch), "vf": list(critic)},
             "activation_fn": ACTIVATIONS[config.activation],
             "log_std_init": config.log_std_init,
         }
