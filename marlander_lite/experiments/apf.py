@@ -115,6 +115,13 @@ class APFConfig:
             if getattr(self, name) <= 0:
                 raise ValueError(f"APFConfig.{name} must be > 0, got {getattr(self, name)!r}.")
 
+    @classmethod
+    def textbook(cls) -> APFConfig:
+        """The paper's kind of baseline: attraction straight at the pad, repulsion between drones, a PD on
+        the error; no descent cone (``cone_slope`` 0) and no platform-velocity observer (``feedforward_gain`` 0).
+        The speed caps stay: a landing PID would not dive onto its pad either."""
+        return cls(cone_slope=0.0, approach_height=0.0, feedforward_gain=0.0)
+
     def as_dict(self) -> dict[str, float]:
         """The gains by name, for tables and run records."""
         return asdict(self)

@@ -28,15 +28,16 @@ from marlander_lite.platforms import PlateGeometry
 from marlander_lite.policy_file import MLPPolicy, load_policy, read_contract
 from marlander_lite.task import ACT_PER_DRONE, OBS_PER_DRONE, TaskConfig
 
-ControllerName = Literal["marlander", "baseline", "single-agent-apf", "marlander-plus"]
+ControllerName = Literal["marlander", "baseline", "single-agent-apf", "marlander-plus", "baseline-tuned"]
 CONTROLLERS: tuple[str, ...] = get_args(ControllerName)
 PAPER_CONTROLLERS: tuple[str, ...] = ("marlander", "baseline", "single-agent-apf")
-"""The controllers the paper compares; ``marlander-plus`` is ours (beyond the paper)."""
+"""The controllers the paper compares; ``marlander-plus`` and ``baseline-tuned`` are ours (beyond the paper)."""
 CONTROLLER_LABELS: dict[str, str] = {
     "marlander": "MARLander (centralised MARL policy)",
-    "baseline": "Baseline (PID + APF)",
+    "baseline": "Baseline (PID + APF, textbook)",
     "single-agent-apf": "Single-agent RL + APF (MorphoLander-style)",
     "marlander-plus": "MARLander + platform velocity (ours, beyond the paper)",
+    "baseline-tuned": "PID + APF tuned: descent cone + platform-velocity observer (ours)",
 }
 """How tables and figures name each controller."""
 POLICY_CONTROLLERS: tuple[str, ...] = ("marlander", "single-agent-apf", "marlander-plus")
@@ -96,14 +97,19 @@ class PIDAPFController:
 
     Args:
         task: the task (``num_drones``, ``max_speed`` to normalise, ``dt`` for the integral).
-        config: gains; the tuned defaults unless given.
+        config: gains; the tuned defaults unless given (``APFConfig.textbook()`` is the paper's kind).
         geometry: plate geometry, for the pad offsets between drones.
+        name: ``baseline`` (textbook gains) or ``baseline-tuned``.
     """
 
-    name = "baseline"
-
-    def __init__(self, task: TaskConfig, config: APFConfig | None = None, geometry: PlateGeometry | None = None):
-        self.task = task
+    def __init__(
+        self,
+        task: TaskConfig,
+        config: APFConfig | None = None,
+        geometry: PlateGeometry | None = None,
+        name: str = "baseline-tuned",
+    ):
+        self.task, self.name = task, name
         self.config = config or APFConfig()
         self.offsets = apf.plate_offsets(task.num_drones, geometry)
         self.reset()
@@ -206,7 +212,7 @@ class ControllerSpec:
     @property
     def resolved_policy_path(self) -> Path | None:
         """The policy file this controller loads (None for the baseline)."""
-        if self.name == "baseline":
+        if self.name not in POLICY_CONTROLLERS:
             return None
         return Path(self.policy_path) if self.policy_path is not None else DEFAULT_POLICIES[self.simulator][self.name]
 
@@ -224,7 +230,9 @@ def build_controller(spec: ControllerSpec, task: TaskConfig, geometry: PlateGeom
     :class:`~marlander_lite.policy_file.PolicyFileError` if the file does not fit ``task``.
     """
     if spec.name == "baseline":
-        return PIDAPFController(task, spec.apf, geometry)
+        return PIDAPFController(task, APFConfig.textbook(), geometry, name="baseline")
+    if spec.name == "baseline-tuned":
+        return PIDAPFController(task, spec.apf, geometry, name="baseline-tuned")
     path = spec.resolved_policy_path
     assert path is not None
     if not path.is_file():

@@ -69,6 +69,7 @@ PAPER_TRIALS: dict[str, dict[str, int]] = {
     "baseline": {"static": 10, "moving": 10},
     "single-agent-apf": {"static": 12, "moving": 8},
     "marlander-plus": {"static": 12, "moving": 8},
+    "baseline-tuned": {"static": 10, "moving": 10},
 }
 """Trials per controller and group in the paper: 12 static (6 floor + 6 UR10) and 8 moving for
 MARLander (Sec. IV-B/C), 10 each for the baseline (Sec. IV-D). The paper gives no count for

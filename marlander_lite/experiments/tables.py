@@ -43,12 +43,14 @@ PAPER: dict[str, dict[str, PaperRow]] = {
         "single-agent-apf": PaperRow(None, 2.35, None, None),
         "marlander": PaperRow(91.67, 2.26, 12.0, 12, (2.67, 3.26)),
         "marlander-plus": PaperRow(None, None, None, None),
+        "baseline-tuned": PaperRow(None, None, None, None),
     },
     "moving": {
         "baseline": PaperRow(60.0, 7.4, 28.0, 10),
         "single-agent-apf": PaperRow(None, 3.5, None, None),
         "marlander": PaperRow(75.0, 3.93, 17.0, 8, (4.38, 3.47)),
         "marlander-plus": PaperRow(None, None, None, None),
+        "baseline-tuned": PaperRow(None, None, None, None),
     },
 }
 """The paper's Tables I (static) and II (moving), and the per-drone deviations of Sec. IV-B/C.
@@ -240,9 +242,8 @@ def paper_table(rows: Sequence[SummaryRow], group: str, simulator: str) -> str:
         "| median cm (ours) | precision cm (paper) | time s (ours) | time s (paper) |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
-    names = ["baseline", "single-agent-apf", "marlander"] + (
-        ["marlander-plus"] if "marlander-plus" in by_controller else []
-    )
+    extras = [name for name in ("baseline-tuned", "marlander-plus") if name in by_controller]
+    names = ["baseline", "single-agent-apf", "marlander", *extras]
     for name in names:
         paper = PAPER[group][name]
         paper_cells = [_paper(paper.success_pct), _paper(paper.precision_cm), _paper(paper.time_s)]

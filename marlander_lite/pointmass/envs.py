@@ -16,14 +16,25 @@ from marlander_lite.task import TaskConfig
 POINTMASS_OPTIONS = (*COMMON_OPTIONS, "dynamics")
 
 
-def _params(dynamics: PointMassParams | dict | None) -> PointMassParams | None:
+def build_simulator(
+    num_envs: int = 1,
+    num_drones: int = 2,
+    platform: str | PlatformConfig = "static-floor",
+    platform_speed: float | tuple[float, float] | None = None,
+    task: TaskConfig | dict | None = None,
+    sensing: SensingConfig | str | None = None,
+    dynamics: PointMassParams | dict | None = None,
+) -> tuple[PointMassSwarm, SensingConfig]:
+    """Validate the options (see :class:`PointMassLandingEnv`) and build the simulator."""
+    check_num_envs(num_envs)
+    task_config, platform_config, sensing_config = build_configs(num_drones, platform, platform_speed, task, sensing)
     if isinstance(dynamics, dict):
         known = set(PointMassParams.__dataclass_fields__)
         unknown = sorted(set(dynamics) - known)
         if unknown:
             raise TypeError(f"Unknown dynamics field(s) {unknown}; allowed: {sorted(known)}.")
-        return PointMassParams(**dynamics)
-    return dynamics
+        dynamics = PointMassParams(**dynamics)
+    return PointMassSwarm(task_config, platform_config, int(num_envs), dynamics), sensing_config
 
 
 class PointMassLandingEnv(SwarmLandingEnv):
@@ -82,10 +93,7 @@ class PointMassLandingEnv(SwarmLandingEnv):
         **unknown: Any,
     ) -> None:
         reject_unknown(unknown, POINTMASS_OPTIONS, "PointMassLanding-v0")
-        task_config, platform_config, sensing_config = build_configs(
-            num_drones, platform, platform_speed, task, sensing
-        )
-        super().__init__(PointMassSwarm(task_config, platform_config, 1, _params(dynamics)), sensing_config)
+        super().__init__(*build_simulator(1, num_drones, platform, platform_speed, task, sensing, dynamics))
 
 
 def pointmass_parallel_env(
@@ -99,8 +107,7 @@ def pointmass_parallel_env(
 ) -> SwarmParallelEnv:
     """PettingZoo ``ParallelEnv`` of the point-mass swarm; options as :class:`PointMassLandingEnv`."""
     reject_unknown(unknown, POINTMASS_OPTIONS, "pointmass_parallel_env")
-    task_config, platform_config, sensing_config = build_configs(num_drones, platform, platform_speed, task, sensing)
-    return SwarmParallelEnv(PointMassSwarm(task_config, platform_config, 1, _params(dynamics)), sensing_config)
+    return SwarmParallelEnv(*build_simulator(1, num_drones, platform, platform_speed, task, sensing, dynamics))
 
 
 class PointMassVecEnv(LandingVecEnv):
@@ -122,9 +129,7 @@ class PointMassVecEnv(LandingVecEnv):
         **unknown: Any,
     ) -> None:
         reject_unknown(unknown, (*POINTMASS_OPTIONS, "num_envs", "seed"), "PointMassVecEnv")
-        check_num_envs(num_envs)
-        task_config, platform_config, sensing_config = build_configs(
-            num_drones, platform, platform_speed, task, sensing
+        simulator, sensing_config = build_simulator(
+            num_envs, num_drones, platform, platform_speed, task, sensing, dynamics
         )
-        simulator = PointMassSwarm(task_config, platform_config, int(num_envs), _params(dynamics))
         super().__init__(simulator, sensing_config, seed)
