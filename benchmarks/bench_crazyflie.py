@@ -10,7 +10,10 @@ Prints, as medians of ``--repeats`` runs measured in this one process:
    touches), for the simulator alone and for the full gymnasium env (which adds the shared MDP
    layer, ``LandingEpisodes``);
 3. the full 2-drone gymnasium env at 30 Hz policy and PID rate (240 Hz physics), the setting
-   of the nearest toolkit's RL env, without and with episode resets.
+   of the nearest toolkit's RL env, without and with episode resets;
+4. the stable-baselines3 ``VecEnv`` of 16 two-drone swarms that training uses, random actions,
+   batched in this process (``vectorization="batched"``, the default) and one swarm per
+   subprocess (``"subprocess"``).
 
 Usage: ``python benchmarks/bench_crazyflie.py [--repeats 5] [--seconds 1.0]``. Timings on a
 shared machine swing: compare numbers from the same run only.
@@ -143,6 +146,16 @@ def main() -> None:
     print(f"   random actions with resets: {1 / t_random:6.0f} env steps/s ({episodes[0]} episodes ended)")
     print(f"   one reset:                  {t_reset * 1e3:6.2f} ms")
     env.close()
+    print()
+
+    print("4. SB3 VecEnv of 16 two-drone swarms (24 Hz policy, aero physics), random actions")
+    for vectorization in ("batched", "subprocess"):
+        vec = marlander_lite.make_vec_env("crazyflie", num_envs=16, seed=0, vectorization=vectorization)
+        vec.reset()
+        actions = np.random.default_rng(0).uniform(-1, 1, (16, 6)).astype(np.float32)
+        t_vec = per_call(lambda vec=vec: vec.step(actions), secs, reps)
+        print(f"   {vectorization:<10} {16 / t_vec:7.0f} env steps/s ({t_vec / 16 * 1e6:5.0f} us per swarm step)")
+        vec.close()
 
 
 if __name__ == "__main__":
