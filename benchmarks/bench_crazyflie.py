@@ -29,7 +29,7 @@ import gymnasium as gym
 import numpy as np
 import pybullet as p
 
-import marlander_lite  # noqa: F401  (registers the gymnasium ids)
+import marlander_lite  # registers the gymnasium ids
 from marlander_lite.crazyflie import CrazyflieSwarm, PhysicsConfig
 from marlander_lite.platforms import PlatformConfig
 from marlander_lite.task import TaskConfig
@@ -153,7 +153,7 @@ def main() -> None:
         vec = marlander_lite.make_vec_env("crazyflie", num_envs=16, seed=0, vectorization=vectorization)
         vec.reset()
         actions = np.random.default_rng(0).uniform(-1, 1, (16, 6)).astype(np.float32)
-        t_vec = per_call(lambda vec=vec: vec.step(actions), secs, reps)
+        t_vec = per_call(lambda vec=vec, actions=actions: vec.step(actions), secs, reps)
         print(f"   {vectorization:<10} {16 / t_vec:7.0f} env steps/s ({t_vec / 16 * 1e6:5.0f} us per swarm step)")
         vec.close()
 

@@ -37,7 +37,8 @@ def main() -> None:
         files = train(config, Path(folder) / "quick-cpu", preset="quick-cpu")
         minutes = (time.perf_counter() - started) / 60
         steps = json.loads(files.config.read_text())["finished"]["steps"]
-        print(f"quick-cpu, seed {args.seed}: {steps:,} steps in {minutes:.2f} min ({steps / minutes / 60:,.0f} steps/s)")
+        rate = steps / minutes / 60
+        print(f"quick-cpu, seed {args.seed}: {steps:,} steps in {minutes:.2f} min ({rate:,.0f} steps/s)")
         floor = None
         for platform in ("static-floor", "static-elevated"):
             for sensing in ("perfect", "vicon"):
