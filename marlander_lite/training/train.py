@@ -168,6 +168,20 @@ def _write_config(files: RunFiles, config: TrainConfig, preset: str | None) -> N
     files.config.write_text(json.dumps(record, indent=2))
 
 
+def continue_from(config: TrainConfig, run_dir: str | Path) -> TrainConfig:
+    """``config`` set to fine-tune the run in ``run_dir``: its drone count and observation layout are kept."""
+    files = RunFiles(Path(run_dir))
+    if not files.config.is_file() or not files.model.is_file():
+        raise FileNotFoundError(
+            f"{run_dir} is not a finished training run (it needs config.json and model.zip); "
+            "pass a directory written by 'marlander train'."
+        )
+    source = TrainConfig.from_dict(json.loads(files.config.read_text())["train"])
+    observe = bool(source.task.get("observe_platform_velocity", False))
+    task = {**config.task, "observe_platform_velocity": observe}
+    return config.replace(init_from=str(run_dir), num_drones=source.num_drones, task=task)
+
+
 def train(
     config: TrainConfig, out_dir: str | Path, *, preset: str | None = None, progress_bar: bool = False
 ) -> RunFiles:
