@@ -54,21 +54,26 @@ def plot_training_curves(
     labels = list(labels) if labels is not None else [Path(r).name for r in runs]
     if len(labels) != len(runs):
         raise ValueError(f"Got {len(labels)} labels for {len(runs)} runs.")
-    fig, axes = plt.subplots(1, len(curves), figsize=(5.0 * len(curves), 3.6), squeeze=False)
+    cols = min(2, len(curves))
+    rows = -(-len(curves) // cols)
+    fig, grid = plt.subplots(rows, cols, figsize=(5.5 * cols, 3.6 * rows), squeeze=False)
+    axes = grid.ravel()
+    for ax in axes[len(curves) :]:
+        ax.set_visible(False)
     for run, label in zip(runs, labels, strict=True):
         data = read_progress(run)
         steps = data["time/total_timesteps"] / 1e6
-        for ax, name in zip(axes[0], curves, strict=True):
+        for ax, name in zip(axes, curves, strict=False):
             column = CURVES[name][0]
             if column in data:
                 ax.plot(steps, data[column], label=label)
-    for ax, name in zip(axes[0], curves, strict=True):
+    for ax, name in zip(axes, curves, strict=False):
         _, ylabel, figure = CURVES[name]
         ax.set_xlabel("Environment steps (millions)")
         ax.set_ylabel(ylabel)
         ax.set_title(f"{ylabel} during training" + (f" (paper {figure})" if figure else ""))
         ax.grid(alpha=0.3)
-    axes[0][0].legend()
+    axes[0].legend()
     fig.tight_layout()
     if out is not None:
         Path(out).parent.mkdir(parents=True, exist_ok=True)

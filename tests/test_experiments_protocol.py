@@ -143,7 +143,7 @@ def test_wrong_policy_files_are_refused_with_the_reason(tmp_path, single_agent_f
         build_controller(ControllerSpec("single-agent-apf", two_drone), TaskConfig())
     with pytest.raises(PolicyFileError, match="takes 1 drone"):
         build_controller(ControllerSpec("marlander", single_agent_file), TaskConfig())
-    with pytest.raises(FileNotFoundError, match="preset .paper."):
+    with pytest.raises(FileNotFoundError, match=r"preset 'quick-cpu'"):
         build_controller(ControllerSpec("marlander", tmp_path / "missing.safetensors"), TaskConfig())
     with pytest.raises(ValueError, match="allowed: marlander, baseline, single-agent-apf"):
         ControllerSpec("pid")  # type: ignore[arg-type]

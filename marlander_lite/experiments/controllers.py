@@ -44,7 +44,7 @@ POLICY_CONTROLLERS: tuple[str, ...] = ("marlander", "single-agent-apf", "marland
 """Controllers that fly a policy file."""
 DEFAULT_POLICIES: dict[str, dict[str, Path]] = {
     "pointmass": {
-        "marlander": Path("data/policies/paper.safetensors"),
+        "marlander": Path("data/policies/quick-cpu.safetensors"),
         "single-agent-apf": Path("data/policies/single-agent.safetensors"),
         "marlander-plus": Path("data/policies/moving.safetensors"),
     },
@@ -236,7 +236,7 @@ def build_controller(spec: ControllerSpec, task: TaskConfig, geometry: PlateGeom
     path = spec.resolved_policy_path
     assert path is not None
     if not path.is_file():
-        preset = {"single-agent-apf": "single-agent", "marlander-plus": "moving"}.get(spec.name, "paper")
+        preset = {"single-agent-apf": "single-agent", "marlander-plus": "moving"}.get(spec.name, "quick-cpu")
         raise FileNotFoundError(
             f"The {spec.name!r} controller needs the policy file {path}, which does not exist. Train one "
             f"(training preset {preset!r}) or pass its path; the baseline needs none (--controllers baseline)."
