@@ -44,7 +44,7 @@ POLICY_CONTROLLERS: tuple[str, ...] = ("marlander", "single-agent-apf", "marland
 """Controllers that fly a policy file."""
 DEFAULT_POLICIES: dict[str, dict[str, Path]] = {
     "pointmass": {
-        "marlander": Path("data/policies/quick-cpu.safetensors"),
+        "marlander": Path("data/policies/paper.safetensors"),
         "single-agent-apf": Path("data/policies/single-agent.safetensors"),
         "marlander-plus": Path("data/policies/moving.safetensors"),
     },
