@@ -57,17 +57,17 @@ def plot_training_curves(
     cols = min(2, len(curves))
     rows = -(-len(curves) // cols)
     fig, grid = plt.subplots(rows, cols, figsize=(5.5 * cols, 3.6 * rows), squeeze=False)
-    axes = grid.ravel()
-    for ax in axes[len(curves) :]:
-        ax.set_visible(False)
+    for spare in grid.ravel()[len(curves) :]:
+        spare.set_visible(False)
+    axes = grid.ravel()[: len(curves)]
     for run, label in zip(runs, labels, strict=True):
         data = read_progress(run)
         steps = data["time/total_timesteps"] / 1e6
-        for ax, name in zip(axes, curves, strict=False):
+        for ax, name in zip(axes, curves, strict=True):
             column = CURVES[name][0]
             if column in data:
                 ax.plot(steps, data[column], label=label)
-    for ax, name in zip(axes, curves, strict=False):
+    for ax, name in zip(axes, curves, strict=True):
         _, ylabel, figure = CURVES[name]
         ax.set_xlabel("Environment steps (millions)")
         ax.set_ylabel(ylabel)
