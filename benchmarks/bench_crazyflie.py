@@ -8,7 +8,10 @@ Prints, as medians of ``--repeats`` runs measured in this one process:
 2. the cost of one step of our code over a bare ``stepSimulation`` loop that advances the same
    bodies by the same time (gravity off, so the drones float as if hovering and nothing
    touches), for the simulator alone and for the full gymnasium env (which adds the shared MDP
-   layer, ``LandingEpisodes``);
+   layer, ``LandingEpisodes``), next to the *API floor*: the same loop plus only the PyBullet
+   calls that any controller ticking at ``control_hz`` outside PyBullet must make (per tick and
+   drone: read pose and velocity, apply one force and one torque; per tick: one contact query),
+   with constant forces and no arithmetic. No Python controller can cost less than the floor.
 3. the full 2-drone gymnasium env at 30 Hz policy and PID rate (240 Hz physics), the setting
    of the nearest toolkit's RL env, without and with episode resets;
 4. the stable-baselines3 ``VecEnv`` of 16 two-drone swarms that training uses, random actions,
@@ -73,6 +76,26 @@ def bare_physics(sim: CrazyflieSwarm) -> callable:
     return run
 
 
+def api_floor(sim: CrazyflieSwarm) -> callable:
+    """The bare loop plus the PyBullet calls a controller ticking at ``control_hz`` cannot avoid."""
+    ticks = round(sim.physics.control_hz / sim.task.policy_hz)
+    cid, bodies, zero = sim.client, sim.world.drones, (0.0, 0.0, 0.0)
+    link_frame = p.LINK_FRAME
+
+    def run() -> None:
+        for _ in range(ticks):
+            for body in bodies:
+                p.applyExternalForce(body, -1, zero, zero, link_frame, physicsClientId=cid)
+                p.applyExternalTorque(body, -1, zero, link_frame, physicsClientId=cid)
+            p.stepSimulation(physicsClientId=cid)
+            p.getContactPoints(physicsClientId=cid)
+            for body in bodies:
+                p.getBasePositionAndOrientation(body, physicsClientId=cid)
+                p.getBaseVelocity(body, physicsClientId=cid)
+
+    return run
+
+
 def with_gravity_off(sim: CrazyflieSwarm, fn) -> callable:
     def run() -> None:
         p.setGravity(0, 0, 0, physicsClientId=sim.client)
@@ -93,17 +116,22 @@ def main() -> None:
     print(f"PyBullet {p.getAPIVersion()}, medians of {reps} runs of ~{secs:.1f} s\n")
 
     print("1. Simulator step (policy 24 Hz = 2 PID ticks at 48 Hz = 10 physics steps at 240 Hz), hovering")
-    print(f"{'drones':>6} {'physics':>8} {'steps/s':>9} {'PID ticks/s':>12} {'real-time x':>12} {'bare x':>8}")
+    header = f"{'drones':>6} {'physics':>8} {'steps/s':>9} {'PID ticks/s':>12} {'real-time x':>12}"
+    print(f"{header} {'bare x':>8} {'floor x':>8}")
     for n in (1, 2, 4, 8):
         for physics in ("bare", "aero"):
             sim = hovering_swarm(n, physics)
             hover = np.zeros((1, n, 3))
             step = per_call(lambda sim=sim, hover=hover: sim.step(hover), secs, reps)
-            bare = per_call(with_gravity_off(sim, bare_physics(sim)), secs, reps) if physics == "bare" else 0.0
-            ratio = f"{step / bare:8.2f}" if physics == "bare" else f"{'':>8}"
-            print(f"{n:>6} {physics:>8} {1 / step:9.0f} {2 / step:12.0f} {sim.task.dt / step:12.1f} {ratio}")
+            ratios = f"{'':>8} {'':>8}"
+            if physics == "bare":
+                bare = per_call(with_gravity_off(sim, bare_physics(sim)), secs, reps)
+                floor = per_call(with_gravity_off(sim, api_floor(sim)), secs, reps)
+                ratios = f"{step / bare:8.2f} {floor / bare:8.2f}"
+            print(f"{n:>6} {physics:>8} {1 / step:9.0f} {2 / step:12.0f} {sim.task.dt / step:12.1f} {ratios}")
             sim.close()
-    print("   'bare x': simulator step / bare stepSimulation loop over the same bodies (gravity off)\n")
+    print("   'bare x': simulator step / bare stepSimulation loop over the same bodies (gravity off)")
+    print("   'floor x': API floor (the PyBullet calls a 48 Hz controller must make) / the same bare loop\n")
 
     print("2. Where a 2-drone env step goes (policy 24 Hz, aero physics), microseconds per step")
     forever = {"episode_seconds": 1e5}  # no episode end while timing a hovering swarm
@@ -116,7 +144,9 @@ def main() -> None:
     t_env = per_call(lambda: env.step(zero), secs, reps)
     t_sim = per_call(lambda: sim.step(hover), secs, reps)
     t_bare = per_call(with_gravity_off(sim, bare_physics(sim)), secs, reps)
+    t_floor = per_call(with_gravity_off(sim, api_floor(sim)), secs, reps)
     print(f"   bare stepSimulation loop (10 physics steps): {t_bare * 1e6:7.0f}")
+    print(f"   API floor (+ the unavoidable PyBullet calls): {t_floor * 1e6:7.0f}  = {t_floor / t_bare:.2f} x bare")
     print(f"   CrazyflieSwarm.step (PID, forces, contacts):  {t_sim * 1e6:7.0f}  = {t_sim / t_bare:.2f} x bare")
     print(f"   gymnasium env step (+ LandingEpisodes, face): {t_env * 1e6:7.0f}  = {t_env / t_bare:.2f} x bare")
     env.close()

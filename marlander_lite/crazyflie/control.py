@@ -137,6 +137,7 @@ class CascadedPID:
         """Collective thrust at ``pwm_min`` (N): the controller never asks for less while flying."""
         self.thrust_max = params.max_thrust
         """Collective thrust at ``pwm_max`` (N)."""
+        self._weight = params.weight
         self.pos_integral = [[0.0, 0.0, 0.0] for _ in range(num_drones)]
         """Integrated position error per drone (m s)."""
         self.att_integral = [[0.0, 0.0, 0.0] for _ in range(num_drones)]
@@ -183,7 +184,7 @@ class CascadedPID:
         integral[0], integral[1], integral[2] = ix, iy, iz
         fx = kpx * ex + kix * ix + kdx * (target_vel[0] - vel[0])
         fy = kpy * ey + kiy * iy + kdy * (target_vel[1] - vel[1])
-        fz = kpz * ez + kiz * iz + kdz * (target_vel[2] - vel[2]) + p.weight
+        fz = kpz * ez + kiz * iz + kdz * (target_vel[2] - vel[2]) + self._weight
         fz = self.thrust_min if fz < self.thrust_min else self.thrust_max if fz > self.thrust_max else fz
         horizontal = math.sqrt(fx * fx + fy * fy)
         cap = self._tan_tilt * fz

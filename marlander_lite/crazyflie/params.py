@@ -86,7 +86,7 @@ class CF2XParams:
     drag_coeff_z: float = 10.311e-7
     """Rotor drag coefficient along body z (same units)."""
     downwash_coeffs: tuple[float, float, float] = (2267.18, 0.16, -0.11)
-    """Published downwash fit (c1 in N, c2, c3 in m); see :func:`marlander_lite.crazyflie.physics.downwash_forces`."""
+    """Published downwash fit (c1 in N, c2, c3 in m); see :func:`marlander_lite.crazyflie.physics.downwash_push`."""
 
     def __post_init__(self) -> None:
         positive = ("mass", "ixx", "iyy", "izz", "arm", "kf", "km", "prop_radius", "collision_radius")
@@ -163,9 +163,9 @@ class PhysicsConfig:
     ground_effect: bool = False
     """Extra thrust near the floor or the plate (:func:`~marlander_lite.crazyflie.physics.ground_effect_gain`)."""
     drag: bool = False
-    """Rotor drag against the body velocity (:func:`~marlander_lite.crazyflie.physics.drag_forces`)."""
+    """Rotor drag against the body velocity (:func:`~marlander_lite.crazyflie.physics.drag_force`)."""
     downwash: bool = False
-    """Bounded wake of drones above (:func:`~marlander_lite.crazyflie.physics.downwash_forces`)."""
+    """Bounded wake of drones above (:func:`~marlander_lite.crazyflie.physics.downwash_push`)."""
     motor_time_constant: float = 0.0
     """First-order lag of the rotor speed behind its command (s); 0 means the rotors follow at once.
     With a lag, the force held over a tick is the exact mean of the lagging rotors' thrust."""

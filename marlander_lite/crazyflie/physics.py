@@ -58,9 +58,18 @@ def ground_effect_gain(height: float, params: CF2XParams) -> float:
     (25 mm): no rotor of an upright drone gets closer, and a tilted one must not gain more.
     With the published ``C_ge = 11.37`` the largest gain is 1.61.
     """
+    return ground_effect_gains((height,), params)[0]
+
+
+def ground_effect_gains(heights: Sequence[float], params: CF2XParams) -> tuple[float, ...]:
+    """:func:`ground_effect_gain` of each rotor of one drone, ``heights`` in m (one call per drone and tick)."""
     floor = params.collision_height / 2 + params.rotor_z
-    ratio = params.prop_radius / (4.0 * (height if height > floor else floor))
-    return 1.0 + params.ground_effect_coeff * ratio * ratio
+    radius, coeff = params.prop_radius, params.ground_effect_coeff
+    gains = []
+    for h in heights:
+        ratio = radius / (4.0 * (h if h > floor else floor))
+        gains.append(1.0 + coeff * ratio * ratio)
+    return tuple(gains)
 
 
 def drag_force(rpm_sum: float, vel_body: Vector, params: CF2XParams) -> Vector:

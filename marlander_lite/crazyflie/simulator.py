@@ -44,7 +44,7 @@ import pybullet as p
 from marlander_lite import task
 from marlander_lite.crazyflie.control import CascadedPID, PIDGains, rotation_matrix
 from marlander_lite.crazyflie.params import CF2XParams, PhysicsConfig, ratio_to_count
-from marlander_lite.crazyflie.physics import downwash_push, drag_force, ground_effect_gain, motor_wrench
+from marlander_lite.crazyflie.physics import downwash_push, drag_force, ground_effect_gains, motor_wrench
 from marlander_lite.crazyflie.world import World, connect
 from marlander_lite.episodes import SwarmState
 from marlander_lite.platforms import PlatformConfig, PlatformMotion
@@ -325,8 +325,7 @@ class CrazyflieSwarm:
         over_plate = abs(pos[0] - px) <= self._half_x and abs(pos[1] - py) <= self._half_y and pos[2] >= pz
         base = pos[2] - (pz if over_plate else 0.0)
         r20, r21, r22 = rot[6], rot[7], rot[8]
-        params = self.params
-        return tuple(ground_effect_gain(base + r20 * x + r21 * y + r22 * z, params) for x, y, z in self._rotors)
+        return ground_effect_gains([base + r20 * x + r21 * y + r22 * z for x, y, z in self._rotors], self.params)
 
     def _advance_tick(self) -> None:
         """Apply the held forces and let PyBullet run one control period (``steps_per_tick`` physics steps)."""

@@ -169,7 +169,7 @@ def _write_config(files: RunFiles, config: TrainConfig, preset: str | None) -> N
 
 
 def continue_from(config: TrainConfig, run_dir: str | Path) -> TrainConfig:
-    """``config`` set to fine-tune the run in ``run_dir``: its drone count and observation layout are kept."""
+    """``config`` set to fine-tune the run in ``run_dir``: its drone count, observation layout and networks are kept."""
     files = RunFiles(Path(run_dir))
     if not files.config.is_file() or not files.model.is_file():
         raise FileNotFoundError(
@@ -179,7 +179,9 @@ def continue_from(config: TrainConfig, run_dir: str | Path) -> TrainConfig:
     source = TrainConfig.from_dict(json.loads(files.config.read_text())["train"])
     observe = bool(source.task.get("observe_platform_velocity", False))
     task = {**config.task, "observe_platform_velocity": observe}
-    return config.replace(init_from=str(run_dir), num_drones=source.num_drones, task=task)
+    # The model is loaded whole from model.zip, so its networks are the source's; the saved config must say so.
+    networks = {"net_arch": source.net_arch, "critic_arch": source.critic_arch, "activation": source.activation}
+    return config.replace(init_from=str(run_dir), num_drones=source.num_drones, task=task, **networks)
 
 
 def train(
