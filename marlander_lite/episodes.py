@@ -14,7 +14,7 @@ from typing import Protocol
 
 import numpy as np
 
-from marlander_lite import task
+from marlander_lite import task, training_aids
 from marlander_lite.platforms import PlatformConfig
 from marlander_lite.rotations import vector_norm
 from marlander_lite.sensing import ObservationChannel, SensingConfig
@@ -103,6 +103,9 @@ class StepOutcome:
     """Time of each drone's touchdown since the episode start (s); NaN until it lands."""
     min_separation: np.ndarray
     """Smallest distance between any two drones so far in the episode (m); inf for one drone."""
+    rel_speed: np.ndarray
+    """Each drone's speed relative to its pad at this step (m/s), as the touchdown test saw it: for a drone
+    touching down now, its impact speed."""
     episode_return: np.ndarray
     """Sum of ``R_t`` so far in the episode."""
     episode_length: np.ndarray
@@ -147,6 +150,8 @@ class LandingEpisodes:
         self.landing_time = np.full((e, n), np.nan, order="F")
         self.min_separation = np.full(e, np.inf)
         self.episode_return = np.zeros(e)
+        self.previous_command = np.zeros((e, n, 3))
+        """Last velocity commands (m/s), for the smoothness training aid; zero after a reset."""
 
     def seed(self, seed: int | None) -> None:
         """Restart the random generator: the same seed gives the same resets and noise."""
@@ -174,6 +179,7 @@ class LandingEpisodes:
         self.landing_error[ids] = np.nan
         self.landing_time[ids] = np.nan
         self.episode_return[ids] = 0.0
+        self.previous_command[ids] = 0.0
         self.min_separation[ids] = task.min_separation(s.pos)
         return self.channel.reset(ids, obs, self.rng)
 
@@ -196,6 +202,12 @@ class LandingEpisodes:
         active = ~self.landed
         landed_now, crashed = task.touchdown_outcome(s.contact, horizontal, speed, self.landed, self.pad_radius, cfg)
         r_drones = task.drone_rewards(self.prev_dist, dist, speed, landed_now, active, cfg)
+        if training_aids.uses_training_penalties(cfg):
+            penalty = training_aids.training_aid_penalty(
+                velocity, rel_pos, s.vel, s.pad_vel, cfg, self.previous_command
+            )
+            r_drones -= penalty * active
+            self.previous_command[...] = velocity
         separation = task.min_separation(s.pos)
         collided = separation < cfg.collision_distance
         np.minimum(self.min_separation, separation, out=self.min_separation)
@@ -227,6 +239,7 @@ class LandingEpisodes:
             landing_error=self.landing_error.copy(),
             landing_time=self.landing_time.copy(),
             min_separation=self.min_separation.copy(),
+            rel_speed=speed,
             episode_return=self.episode_return.copy(),
             episode_length=self.steps.copy(),
         )

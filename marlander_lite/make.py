@@ -45,7 +45,9 @@ def make_vec_env(
     """A stable-baselines3 ``VecEnv`` of ``num_envs`` swarms.
 
     ``"pointmass"`` is natively batched (one process, no loop over environments);
-    ``"crazyflie"`` runs one PyBullet world per subprocess. ``options`` are the env options
+    ``"crazyflie"`` keeps every PyBullet world in this process and steps them as one batch by default
+    (``vectorization="subprocess"`` runs one world per subprocess instead, see
+    :func:`~marlander_lite.crazyflie.envs.make_crazyflie_vec_env`). ``options`` are the env options
     (``num_drones``, ``platform``, ``platform_speed``, ``task``, ``sensing``, and each
     simulator's own), e.g. ``make_vec_env("pointmass", num_envs=256, num_drones=2, seed=0)``.
     """

@@ -21,21 +21,42 @@ CURVES = {
 """Curve name -> (CSV column, axis label, paper figure)."""
 
 
+STEPS_COLUMN = "time/total_timesteps"
+"""The column every SB3 training log has: environment steps so far (the x axis)."""
+
+
+def progress_path(run: str | Path) -> Path:
+    """The training log of ``run``: the CSV itself, or ``logs/progress.csv`` inside a run directory."""
+    path = Path(run)
+    return path / "logs" / "progress.csv" if path.is_dir() else path
+
+
 def read_progress(path: str | Path) -> dict[str, np.ndarray]:
     """Columns of an SB3 ``progress.csv`` as float arrays (empty cells become NaN).
 
-    ``path`` may be the CSV itself or a run directory containing ``logs/progress.csv``.
+    ``path`` may be the CSV itself or a run directory containing ``logs/progress.csv``. A file
+    that is not such a log (no ``time/total_timesteps`` column, text cells, binary data) raises
+    ``ValueError`` saying so.
     """
-    path = Path(path)
-    if path.is_dir():
-        path = path / "logs" / "progress.csv"
+    path = progress_path(path)
     if not path.is_file():
         raise FileNotFoundError(f"No training log at {path}; pass a run directory or its logs/progress.csv.")
-    with path.open(newline="") as handle:
-        rows = list(csv.DictReader(handle))
+    not_a_log = f"{path} is not a training log (a logs/progress.csv written by 'marlander train')"
+    try:
+        with path.open(newline="") as handle:
+            rows = list(csv.DictReader(handle))
+    except (UnicodeDecodeError, csv.Error) as error:
+        raise ValueError(f"{not_a_log}: {error}.") from None
     if not rows:
         raise ValueError(f"{path} holds no logged rollouts yet.")
-    return {key: np.array([float(r[key]) if r.get(key) not in ("", None) else np.nan for r in rows]) for key in rows[0]}
+    if STEPS_COLUMN not in rows[0]:
+        raise ValueError(f"{not_a_log}: it has no {STEPS_COLUMN} column.")
+    try:
+        return {
+            key: np.array([float(r[key]) if r.get(key) not in ("", None) else np.nan for r in rows]) for key in rows[0]
+        }
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"{not_a_log}: {error}.") from None
 
 
 def plot_training_curves(
@@ -54,15 +75,15 @@ def plot_training_curves(
     labels = list(labels) if labels is not None else [Path(r).name for r in runs]
     if len(labels) != len(runs):
         raise ValueError(f"Got {len(labels)} labels for {len(runs)} runs.")
+    logs = [read_progress(run) for run in runs]  # every log is checked before a figure is opened
     cols = min(2, len(curves))
     rows = -(-len(curves) // cols)
     fig, grid = plt.subplots(rows, cols, figsize=(5.5 * cols, 3.6 * rows), squeeze=False)
     for spare in grid.ravel()[len(curves) :]:
         spare.set_visible(False)
     axes = grid.ravel()[: len(curves)]
-    for run, label in zip(runs, labels, strict=True):
-        data = read_progress(run)
-        steps = data["time/total_timesteps"] / 1e6
+    for data, label in zip(logs, labels, strict=True):
+        steps = data[STEPS_COLUMN] / 1e6
         for ax, name in zip(axes, curves, strict=True):
             column = CURVES[name][0]
             if column in data:

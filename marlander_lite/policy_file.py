@@ -6,20 +6,38 @@ observation normalisation, if training used one) and, in the file's metadata, a 
 safetensors can run it; :class:`MLPPolicy` does so in numpy, which is what the deployment loop
 uses. Loading checks the contract against what the caller is about to feed it and refuses a
 mismatch, so a two-drone policy can never be flown on a three-drone config by accident.
+
+Nothing in a file is trusted. Loading checks, in order, and refuses with a
+:class:`PolicyFileError` saying what is wrong:
+
+1. the safetensors container and its metadata (format name and version);
+2. the contract, validated by pydantic against :class:`PolicyContract`: no unknown or missing
+   fields, strict types (``num_drones: "2"`` is refused, not compared as text), allowed values
+   (``activation`` is ``relu`` or ``tanh``, never silently something else);
+3. every tensor (:func:`check_tensors`): the expected names, finite values, the layer shapes
+   chained from ``obs_dim`` through ``hidden_sizes`` to ``act_dim``, ``obs_mean``/``obs_var`` of
+   length ``obs_dim`` with ``obs_var >= 0``;
+4. a dry run (:func:`check_outputs`): the network is run on :data:`DRY_RUN_SAMPLES` seeded
+   observations spread over the observation space, and must give finite actions for all.
+
+Only then can a policy reach the deployment loop and a Crazyflie arm.
 """
 
 from __future__ import annotations
 
+import functools
 import json
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Literal, get_args
 
 import numpy as np
+from pydantic import ConfigDict, Field, Strict, TypeAdapter, ValidationError, with_config
 from safetensors import SafetensorError, safe_open
 from safetensors.numpy import load_file, save_file
 
-from marlander_lite.task import ACT_PER_DRONE, OBS_PER_DRONE, TaskConfig
+from marlander_lite.task import ACT_PER_DRONE, OBS_LIMITS, OBS_PER_DRONE, TaskConfig
 
 FORMAT = "marlander_lite.policy"
 FORMAT_VERSION = 1
@@ -27,38 +45,55 @@ OBSERVATION_LAYOUT = (
     "per drone: p (3, m, relative to own goal), q (4, x y z w), v (3, m/s, relative to platform), omega (3, rad/s)"
 )
 ACTION_LAYOUT = "per drone: velocity command (3, world x y z) as a fraction of max_speed, in [-1, 1]"
-ACTIVATIONS = ("relu", "tanh")
+Activation = Literal["relu", "tanh"]
+ACTIVATIONS: tuple[str, ...] = get_args(Activation)
+ACTIVATION_FUNCTIONS: dict[str, Callable[[np.ndarray], np.ndarray]] = {
+    "relu": lambda x: np.maximum(x, 0.0),
+    "tanh": np.tanh,
+}
+"""The numpy function of each activation name (one entry per name in ``ACTIVATIONS``)."""
+DRY_RUN_SAMPLES = 512
+"""Observations the network must map to finite actions before a policy file is accepted."""
+DRY_RUN_SEED = 0
+Real = Annotated[float, Strict()]
+"""A finite number (an integer is accepted, text or a boolean is not)."""
+Count = Annotated[int, Strict(), Field(ge=1, le=4096)]
+"""A positive integer (not a boolean, not text)."""
 
 
 class PolicyFileError(ValueError):
     """The file is not a readable marlander_lite policy, or it does not fit the caller's contract."""
 
 
+@with_config(ConfigDict(extra="forbid", allow_inf_nan=False))
 @dataclass(frozen=True)
 class PolicyContract:
-    """What a policy file promises: inputs, outputs and the task it was trained on."""
+    """What a policy file promises: inputs, outputs and the task it was trained on.
 
-    num_drones: int
+    The ``Annotated`` constraints are what a file's contract is validated against when read.
+    """
+
+    num_drones: Annotated[int, Strict(), Field(ge=1, le=64)]
     """Drones whose observations are concatenated in the input (1 for a single-agent policy)."""
-    max_speed: float
+    max_speed: Annotated[Real, Field(gt=0, le=20)]
     """Action 1.0 means this speed (m/s)."""
-    policy_hz: float
+    policy_hz: Annotated[Real, Field(ge=1, le=1000)]
     """Rate the policy was trained to act at (Hz)."""
-    activation: str
+    activation: Activation
     """Hidden-layer activation, one of ``ACTIVATIONS``."""
-    hidden_sizes: tuple[int, ...]
+    hidden_sizes: Annotated[tuple[Count, ...], Field(max_length=16)]
     """Widths of the hidden layers of the actor."""
-    normalize_observations: bool
+    normalize_observations: Annotated[bool, Strict()]
     """Whether ``obs_mean``/``obs_var`` tensors standardise the input (VecNormalize statistics)."""
-    obs_per_drone: int = OBS_PER_DRONE
+    obs_per_drone: Literal[13, 16] = OBS_PER_DRONE
     """Numbers per drone in the input: 13 (eq. 2), or 16 when the platform velocity is observed."""
-    obs_clip: float = 10.0
+    obs_clip: Annotated[Real, Field(gt=0, le=1e6)] = 10.0
     """Standardised inputs are clipped to +-obs_clip."""
-    obs_epsilon: float = 1e-8
+    obs_epsilon: Annotated[Real, Field(ge=0, le=1)] = 1e-8
     """Added to the variance before the square root."""
-    task: dict[str, Any] = field(default_factory=dict)
+    task: Annotated[dict[str, Any], Field(max_length=256)] = field(default_factory=dict)
     """The full TaskConfig the policy was trained with, for the record."""
-    extra: dict[str, Any] = field(default_factory=dict)
+    extra: Annotated[dict[str, Any], Field(max_length=256)] = field(default_factory=dict)
     """Free-form notes: preset name, simulator, training steps, seed."""
 
     @property
@@ -95,21 +130,20 @@ class MLPPolicy:
     """Numpy inference of an exported actor: ``act(obs) -> action`` (deterministic, the mean).
 
     ``obs`` is ``(..., 13 N)`` in the layout of eq. 2; the result is ``(..., 3 N)`` in [-1, 1].
+    The tensors are checked first (:func:`check_tensors`); a bad set raises :class:`PolicyFileError`.
     """
 
     def __init__(self, contract: PolicyContract, tensors: dict[str, np.ndarray]) -> None:
+        check_tensors(contract, tensors)
         self.contract = contract
         n_layers = len(contract.hidden_sizes) + 1
         self.weights = [tensors[f"actor.{i}.weight"].astype(np.float64) for i in range(n_layers)]
         self.biases = [tensors[f"actor.{i}.bias"].astype(np.float64) for i in range(n_layers)]
-        if self.weights[0].shape[1] != contract.obs_dim or self.weights[-1].shape[0] != contract.act_dim:
-            raise PolicyFileError(
-                f"Network shape {self.weights[0].shape[1]} -> {self.weights[-1].shape[0]} does not match the "
-                f"contract {contract.obs_dim} -> {contract.act_dim}; the file is inconsistent."
-            )
-        self.obs_mean = tensors.get("obs_mean")
-        self.obs_std = None if self.obs_mean is None else np.sqrt(tensors["obs_var"] + contract.obs_epsilon)
-        self._activation = np.tanh if contract.activation == "tanh" else (lambda x: np.maximum(x, 0.0))
+        self.obs_mean = self.obs_std = None
+        if contract.normalize_observations:
+            self.obs_mean = tensors["obs_mean"].astype(np.float64)
+            self.obs_std = np.sqrt(tensors["obs_var"].astype(np.float64) + contract.obs_epsilon)
+        self._activation = ACTIVATION_FUNCTIONS[contract.activation]
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         x = np.asarray(obs, dtype=np.float64)
@@ -117,47 +151,161 @@ class MLPPolicy:
             raise ValueError(f"Observation has {x.shape[-1]} entries; this policy takes {self.contract.obs_dim}.")
         if not np.isfinite(x).all():
             raise ValueError("Observation contains NaN or infinite values; the policy cannot act on it.")
+        return np.clip(self.forward(x), -1.0, 1.0)
+
+    __call__ = act
+
+    def forward(self, x: np.ndarray) -> np.ndarray:
+        """The network's raw output (before the clip to [-1, 1]) for observations ``(..., obs_dim)``."""
         if self.obs_mean is not None:
             clip = self.contract.obs_clip
             x = np.clip((x - self.obs_mean) / self.obs_std, -clip, clip)
         for w, b in zip(self.weights[:-1], self.biases[:-1], strict=True):
             x = self._activation(x @ w.T + b)
-        return np.clip(x @ self.weights[-1].T + self.biases[-1], -1.0, 1.0)
+        return x @ self.weights[-1].T + self.biases[-1]
 
-    __call__ = act
+
+def observation_bounds(contract: PolicyContract) -> np.ndarray:
+    """``(obs_dim,)`` half-widths of the observation space: observations are clipped to ``task.OBS_LIMITS``."""
+    p, q, v, w = OBS_LIMITS
+    per_drone = np.repeat([p, q, v, w, v], [3, 4, 3, 3, 3])[: contract.obs_per_drone]
+    return np.tile(per_drone, contract.num_drones)
+
+
+def check_tensors(contract: PolicyContract, tensors: dict[str, np.ndarray]) -> None:
+    """Refuse tensors that cannot be the contract's network: names, dtypes, shapes chained layer to layer,
+    finite values, ``obs_mean``/``obs_var`` of length ``obs_dim`` with ``obs_var >= 0``."""
+    sizes = [contract.obs_dim, *contract.hidden_sizes, contract.act_dim]
+    expected = {f"actor.{i}.{part}" for i in range(len(sizes) - 1) for part in ("weight", "bias")}
+    if contract.normalize_observations:
+        expected |= {"obs_mean", "obs_var"}
+    missing, unknown = sorted(expected - set(tensors)), sorted(set(tensors) - expected)
+    problems = [f"missing tensor(s) {missing}"] if missing else []
+    if unknown:
+        problems.append(
+            f"unexpected tensor(s) {unknown[:5]} (normalize_observations={contract.normalize_observations})"
+        )
+    shapes = {f"actor.{i}.weight": (sizes[i + 1], sizes[i]) for i in range(len(sizes) - 1)}
+    shapes |= {f"actor.{i}.bias": (sizes[i + 1],) for i in range(len(sizes) - 1)}
+    shapes |= {"obs_mean": (contract.obs_dim,), "obs_var": (contract.obs_dim,)}
+    for name in sorted(expected & set(tensors)):
+        value = tensors[name]
+        if not np.issubdtype(value.dtype, np.floating):
+            problems.append(f"{name} has dtype {value.dtype}, not a float type")
+        elif value.shape != shapes[name]:
+            problems.append(f"{name} has shape {list(value.shape)}, the contract needs {list(shapes[name])}")
+        elif not np.isfinite(value).all():
+            problems.append(f"{name} has {int((~np.isfinite(value)).sum())} NaN or infinite value(s)")
+        elif name == "obs_var" and (value < 0).any():
+            problems.append(f"obs_var has {int((value < 0).sum())} negative value(s); a variance is >= 0")
+        elif name == "obs_var" and (value.astype(np.float64) + contract.obs_epsilon <= 0).any():
+            problems.append("obs_var + obs_epsilon is 0 somewhere; the standardisation would divide by 0")
+    if problems:
+        layers = " -> ".join(map(str, sizes))
+        raise PolicyFileError(f"Tensors do not fit the contract (layers {layers}): " + "; ".join(problems) + ".")
+
+
+def check_outputs(policy: MLPPolicy, samples: int = DRY_RUN_SAMPLES, seed: int = DRY_RUN_SEED) -> None:
+    """Run ``policy`` on seeded observations spread over the observation space; refuse non-finite outputs.
+
+    Half the samples are uniform in the observation box, half are typical flight values (a tenth
+    of each bound); the box's centre and corners are included.
+    """
+    high = observation_bounds(policy.contract)
+    rng = np.random.default_rng(seed)
+    half = samples // 2
+    obs = np.concatenate(
+        [
+            rng.uniform(-high, high, size=(half, high.size)),
+            rng.uniform(-high, high, size=(samples - half, high.size)) * 0.1,
+            np.stack([np.zeros_like(high), high, -high]),
+        ]
+    )
+    with np.errstate(all="ignore"):
+        out = policy.forward(obs)
+    bad = ~np.isfinite(out).all(axis=-1)
+    if bad.any():
+        raise PolicyFileError(
+            f"The network gives NaN or infinite actions for {int(bad.sum())} of {len(obs)} test observations "
+            f"(seed {seed}); the weights are broken."
+        )
 
 
 def save_policy(path: str | Path, contract: PolicyContract, tensors: dict[str, np.ndarray]) -> Path:
-    """Write ``tensors`` (``actor.{i}.weight``/``bias``, optional ``obs_mean``/``obs_var``) and the contract."""
+    """Write ``tensors`` (``actor.{i}.weight``/``bias``, optional ``obs_mean``/``obs_var``) and the contract.
+
+    The contract is validated as a reader would (a :class:`PolicyFileError` if it would be refused).
+    """
     path = Path(path)
-    if contract.activation not in ACTIVATIONS:
-        raise ValueError(f"activation must be one of {ACTIVATIONS}, got {contract.activation!r}.")
+    text = json.dumps(asdict(contract))
+    parse_contract(text, where="the contract to save")
     path.parent.mkdir(parents=True, exist_ok=True)
     meta = {
         "format": FORMAT,
         "format_version": str(FORMAT_VERSION),
         "observation_layout": OBSERVATION_LAYOUT,
         "action_layout": ACTION_LAYOUT,
-        "contract": json.dumps(asdict(contract)),
+        "contract": text,
     }
     save_file({k: np.ascontiguousarray(v, dtype=np.float32) for k, v in tensors.items()}, str(path), metadata=meta)
     return path
 
 
 def read_contract(path: str | Path) -> PolicyContract:
-    """The contract of a policy file, without loading its weights."""
+    """The validated contract of a policy file (its tensors are not checked: use :func:`load_policy`)."""
     return _read(path)[0]
 
 
 def load_policy(path: str | Path, task: TaskConfig | None = None, *, per_drone: bool = False) -> MLPPolicy:
-    """Load a policy file for numpy inference; with ``task``, refuse it if the contract does not fit."""
+    """Load a policy file for numpy inference, checked as the module docstring says; with ``task``, refuse it
+    if the contract does not fit. Every refusal is a :class:`PolicyFileError`."""
     contract, tensors = _read(path)
     if task is not None:
         contract.check_compatible(task, per_drone=per_drone)
     try:
-        return MLPPolicy(contract, tensors)
-    except KeyError as missing:
-        raise PolicyFileError(f"{path}: the tensor {missing} is missing; the file is incomplete.") from None
+        policy = MLPPolicy(contract, tensors)
+        check_outputs(policy)
+    except PolicyFileError as error:
+        raise PolicyFileError(f"{path}: {error}") from None
+    return policy
+
+
+@functools.cache
+def _contract_adapter() -> TypeAdapter:
+    return TypeAdapter(PolicyContract)
+
+
+def _no_duplicate_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    keys = [k for k, _ in pairs]
+    duplicates = sorted({k for k in keys if keys.count(k) > 1})
+    if duplicates:
+        raise PolicyFileError(f"the contract repeats key(s) {duplicates}")
+    return dict(pairs)
+
+
+def parse_contract(text: str, where: str = "contract") -> PolicyContract:
+    """A :class:`PolicyContract` from its JSON text, validated field by field; :class:`PolicyFileError` if not."""
+    try:
+        fields = json.loads(text, object_pairs_hook=_no_duplicate_keys)
+        return _contract_adapter().validate_python(fields)
+    except (json.JSONDecodeError, RecursionError) as error:
+        raise PolicyFileError(f"{where} is not valid JSON ({type(error).__name__}: {error}).") from None
+    except PolicyFileError as error:
+        raise PolicyFileError(f"{where}: {error}.") from None
+    except ValidationError as error:
+        problems = [_describe(e) for e in error.errors(include_url=False)]
+        raise PolicyFileError(f"{where} is invalid: " + "; ".join(problems[:6]) + ".") from None
+
+
+def _describe(error: dict[str, Any]) -> str:
+    """One pydantic error as ``field: what is wrong (got ...)``."""
+    where = ".".join(str(part) for part in error["loc"]) or "contract"
+    if error["type"] == "missing":
+        return f"{where}: required field missing"
+    if error["type"] == "unexpected_keyword_argument":
+        return f"{where}: unknown field"
+    got = repr(error.get("input"))
+    return f"{where}: {error['msg']} (got {got[:40] + '...' if len(got) > 40 else got})"
 
 
 def _read(path: str | Path) -> tuple[PolicyContract, dict[str, np.ndarray]]:
@@ -168,7 +316,7 @@ def _read(path: str | Path) -> tuple[PolicyContract, dict[str, np.ndarray]]:
         with safe_open(str(path), framework="numpy") as handle:
             meta = handle.metadata() or {}
         tensors = load_file(str(path))
-    except (SafetensorError, OSError, ValueError) as error:
+    except (SafetensorError, OSError, ValueError, TypeError, OverflowError, MemoryError) as error:
         raise PolicyFileError(
             f"{path} is not a readable safetensors file ({error}); it may be truncated or corrupted."
         ) from None
@@ -181,10 +329,6 @@ def _read(path: str | Path) -> tuple[PolicyContract, dict[str, np.ndarray]]:
             f"{path} has policy format version {meta.get('format_version')}; this marlander_lite reads version "
             f"{FORMAT_VERSION}. Re-export it with the matching marlander_lite."
         )
-    try:
-        fields = json.loads(meta["contract"])
-        fields["hidden_sizes"] = tuple(fields["hidden_sizes"])
-        contract = PolicyContract(**fields)
-    except (KeyError, TypeError, json.JSONDecodeError) as error:
-        raise PolicyFileError(f"{path}: its contract cannot be read ({error}).") from None
-    return contract, tensors
+    if "contract" not in meta:
+        raise PolicyFileError(f"{path} has no contract in its metadata; the file is incomplete.")
+    return parse_contract(meta["contract"], where=f"{path}: its contract"), tensors

@@ -42,11 +42,22 @@ class SensingConfig:
 
         Vicon's own figures are 0.15 mm static and under 2 mm dynamic error, and 10-30 ms of
         end-to-end latency; velocity noise follows from differencing 1 mm noise at 100 Hz and
-        filtering.
+        filtering. Source: Vicon's Vantage / Tracker figures (docs/references.md).
         """
         return cls(
             pos_noise_std=0.001, quat_noise_std=0.002, vel_noise_std=0.02, ang_vel_noise_std=0.05, latency_s=0.02
         )
+
+    @classmethod
+    def noisy(cls) -> SensingConfig:
+        """Training aid, not in the paper: :meth:`vicon` with ten times its attitude and body-rate noise.
+
+        Attitude ``q`` and body rates ``omega`` are where velocity trackers differ most (a stiff PID
+        tilts and turns fast, the firmware gently), and in the lab ``omega`` is estimated from
+        differenced motion-capture quaternions, the noisiest input of all. Training against this
+        noise keeps the policy from leaning on them; it is evaluated with :meth:`vicon`.
+        """
+        return cls(pos_noise_std=0.001, quat_noise_std=0.05, vel_noise_std=0.02, ang_vel_noise_std=2.0, latency_s=0.02)
 
     @property
     def is_perfect(self) -> bool:

@@ -49,6 +49,9 @@ class TaskConfig:
     reward constants are not published: the defaults below are ours, chosen so that shaping
     (``alpha``) dominates while flying, a landing (``c``, ``K``) is worth a few metres of
     approach, and a collision (``alpha_c``) costs more than a landing earns.
+
+    Source: the paper (Aschu et al., MARLander, Sec. III-B/C/E; docs/references.md) for eqs. 2-6,
+    the arena and the speed limit.
     """
 
     num_drones: int = 2
@@ -93,6 +96,33 @@ class TaskConfig:
     """Training aid, not in the paper: when set, a touchdown counts as a landing only within this horizontal
     distance of the pad centre (m), stricter than the pad radius; None (the default, used for every
     evaluation) accepts the whole pad."""
+    training_touchdown_speed: float | None = None
+    """Training aid, not in the paper: when set, a touchdown counts as a landing only below this speed (m/s),
+    stricter than ``touchdown_speed_max``, so that policies touch down softly on trackers that brake later."""
+    approach_cone_penalty: float = 0.0
+    """Training aid, not in the paper: reward lost per step and per metre that a drone flies below its approach
+    cone (height above its goal ``< min(approach_cone_slope * horizontal distance, approach_cone_height)``), so that
+    drones descend over their pad instead of skimming the floor or plate towards it. 0 switches it off."""
+    approach_cone_slope: float = 1.0
+    """Height the approach cone asks for per metre of horizontal distance to the pad (m/m)."""
+    approach_cone_height: float = 0.6
+    """The approach cone asks for at most this height above the goal (m), however far the pad."""
+    command_speed_penalty: float = 0.0
+    """Training aid, not in the paper: reward lost per step and per m/s that a command exceeds the speed from which
+    a drone can still stop at its goal, ``sqrt(final_approach_speed^2 + 2 braking_deceleration d)`` (relative to the
+    pad; ``d`` the distance to the goal). 0 switches it off."""
+    braking_deceleration: float = 2.0
+    """Deceleration assumed by the command-speed aid (m/s^2); a Crazyflie at a 20 degree tilt limit makes 3.6."""
+    final_approach_speed: float = 0.3
+    """Speed the command-speed aid allows at the goal itself (m/s)."""
+    command_error_penalty: float = 0.0
+    """Training aid, not in the paper: reward lost per step and per m/s by which a command differs from the drone's
+    velocity beyond ``command_error_free``: a command no tracker can follow at once saturates its tilt. 0: off."""
+    command_error_free: float = 0.6
+    """Velocity error a command may ask for without cost (m/s); the firmware's tilt saturates near 0.8 m/s."""
+    action_change_penalty: float = 0.0
+    """Training aid, not in the paper: reward lost per step and per m/s that a drone's command changes from the
+    previous step's, ``|u_t - u_{t-1}|``. A fast tracker turns a jittery command into jittery flight. 0: off."""
     landed_height: float = 0.0125
     """Height of a drone's body origin above a surface it rests on (m): half the CF2X collision cylinder."""
     observe_platform_velocity: bool = False
@@ -117,6 +147,28 @@ class TaskConfig:
             ),
             (self.collision_distance >= 0, "collision_distance must be >= 0 m"),
             (self.touchdown_speed_max > 0, "touchdown_speed_max must be > 0 m/s"),
+            (
+                self.training_touchdown_speed is None or self.training_touchdown_speed > 0,
+                "training_touchdown_speed must be None or > 0 m/s",
+            ),
+            (
+                min(
+                    self.approach_cone_penalty,
+                    self.command_speed_penalty,
+                    self.command_error_penalty,
+                    self.action_change_penalty,
+                )
+                >= 0,
+                "the training-aid penalties must be >= 0",
+            ),
+            (
+                self.approach_cone_slope >= 0 and self.approach_cone_height >= 0,
+                "approach_cone_slope and approach_cone_height must be >= 0",
+            ),
+            (
+                self.braking_deceleration > 0 and self.final_approach_speed >= 0 and self.command_error_free >= 0,
+                "braking_deceleration must be > 0 m/s^2, final_approach_speed and command_error_free >= 0 m/s",
+            ),
             (
                 self.spawn_height_min + self.spawn_ceiling_margin < self.arena_height,
                 "the spawn heights do not fit in the arena",
@@ -319,13 +371,11 @@ def touchdown_outcome(
     """
     if config.landing_tolerance is not None:
         pad_radius = min(pad_radius, config.landing_tolerance)
+    speed_max = config.touchdown_speed_max
+    if config.training_touchdown_speed is not None:
+        speed_max = min(speed_max, config.training_touchdown_speed)
     touching = (contact != CONTACT_NONE) & ~landed_before
-    landed_now = (
-        touching
-        & (contact == CONTACT_OWN_PAD)
-        & (horizontal_error <= pad_radius)
-        & (rel_speed <= config.touchdown_speed_max)
-    )
+    landed_now = touching & (contact == CONTACT_OWN_PAD) & (horizontal_error <= pad_radius) & (rel_speed <= speed_max)
     return landed_now, touching & ~landed_now
 
 

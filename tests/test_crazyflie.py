@@ -17,14 +17,14 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 import marlander_lite
 from marlander_lite.crazyflie import CF2XParams, CrazyflieSwarm, PhysicsConfig, PIDGains
 from marlander_lite.crazyflie.control import CascadedPID, attitude_loop_spectral_radius, mixer_matrix
-from marlander_lite.crazyflie.physics import downwash_push, ground_effect_gain, motor_wrench
+from marlander_lite.crazyflie.physics import MotorLag, downwash_push, ground_effect_gain, motor_wrench
 from marlander_lite.crazyflie.world import CF2X_URDF
 from marlander_lite.episodes import LandingEpisodes
 from marlander_lite.platforms import PlatformConfig
 from marlander_lite.task import CONTACT_OTHER, TaskConfig
 
 ENV_ID = "marlander_lite/CrazyflieLanding-v0"
-# Published CF2X figures (shared/notes/reference_facts.md), written out independently of params.py.
+# Published CF2X figures (docs/references.md), written out independently of params.py.
 MASS, KF, G = 0.027, 3.16e-10, 9.81
 HOVER_RPM = math.sqrt(MASS * G / (4 * KF))
 
@@ -109,12 +109,11 @@ def test_hover_rpm_is_the_thrust_balance_and_position_holds(physics):
 def test_motor_lag_holds_the_mean_thrust_of_the_lagging_rotors_and_still_hovers():
     tau = 0.03
     sim = make_sim(physics=PhysicsConfig(motor_time_constant=tau))
-    sim.rpm[0] = [10000.0] * 4
-    effective = sim._lagged_motors(0, [15000.0] * 4)
+    effective, now = MotorLag(tau, sim.control_dt).step([15000.0] * 4, [10000.0] * 4)
     t = np.linspace(0.0, sim.control_dt, 200001)
     w = 15000.0 + (10000.0 - 15000.0) * np.exp(-t / tau)  # first-order lag towards the command
     assert effective[0] ** 2 == pytest.approx(np.trapezoid(w * w, t) / sim.control_dt, rel=1e-6)
-    assert sim.rpm[0][0] == pytest.approx(w[-1])
+    assert now[0] == pytest.approx(w[-1])
     start = np.array([[0.0, 0.0, 1.5]])
     sim.place(0, start)
     pos, _ = fly(sim, np.zeros((1, 3)), 2 * 24)

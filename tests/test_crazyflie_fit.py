@@ -8,13 +8,24 @@ Stated tolerances (velocity traces, policy rate 24 Hz, default physics of each s
 * on random piecewise-constant commands (a new command every 0.5 s, up to 2 m/s on every
   axis, 4 s): RMS difference below 0.2 m/s, under a sixth of the RMS command;
 * a drone sinking at 3 m/s while commanded 3 m/s sideways gains less than 1.2 m/s sideways in
-  0.5 s in both simulators (the coupling a single acceleration limit misses).
+  0.5 s in both simulators (the coupling a single acceleration limit misses);
+* the firmware tracker and its perturbed variants are fitted as well (RMS below 0.12 m/s), and
+  the fits move the way the perturbations must move them.
 """
 
 import numpy as np
 import pytest
 
-from marlander_lite.crazyflie.fit import FITTED, crazyflie_response, fit_commands, fit_point_mass, point_mass_response
+from marlander_lite.crazyflie.fit import (
+    FITTED,
+    TRACKER_VARIANTS,
+    crazyflie_response,
+    fit_commands,
+    fit_point_mass,
+    fits_table,
+    identify_trackers,
+    point_mass_response,
+)
 from marlander_lite.pointmass.simulator import PointMassParams
 from marlander_lite.task import TaskConfig
 
@@ -65,3 +76,20 @@ def test_random_command_sequence_agrees_within_the_stated_tolerance():
     error = np.sqrt(np.mean((point_mass - crazyflie) ** 2))
     assert error < 0.2
     assert error < np.sqrt(np.mean(commands**2)) / 6
+
+
+@pytest.mark.slow
+def test_identify_trackers_fits_both_trackers_and_the_perturbations_move_the_fit():
+    fits = identify_trackers(iterations=12)
+    assert list(fits) == list(TRACKER_VARIANTS)
+    assert all(fit.rms_error < 0.12 for fit in fits.values()), fits_table(fits)
+    pid, fw = fits["pid"].params, fits["firmware"].params
+    soft, stiff, heavy = (fits[f"firmware, {k}"].params for k in ("gain 0.7", "gain 1.3", "mass 1.15"))
+    assert fw.velocity_time_constant > 1.2 * pid.velocity_time_constant  # the firmware is the slower tracker
+    for name in ("velocity_time_constant", "vertical_time_constant"):
+        assert getattr(soft, name) > getattr(fw, name) > getattr(stiff, name), name
+    assert 19.0 < fw.max_tilt_deg < 25.0  # the firmware's 20 degree roll / pitch clamp
+    # Sinking is limited by the firmware's minimum thrust, 20000 PWM: g - 4 k_f w(20000)^2 / m.
+    rpm_min = 0.2685 * 20000 + 4070.3
+    assert fw.max_sink_acceleration == pytest.approx(9.81 - 4 * 3.16e-10 * rpm_min**2 / 0.027, rel=0.05)
+    assert heavy.max_climb_acceleration < 0.85 * fw.max_climb_acceleration  # 15 % more mass, same motors

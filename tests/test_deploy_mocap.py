@@ -99,3 +99,22 @@ def test_connecting_to_a_silent_server_times_out():
 def test_connection_errors_are_reported():
     with pytest.raises(ConnectionError, match="Unknown motion capture type"):
         MotionCaptureSource("kinect", {}, timeout_s=20.0)
+
+
+def test_the_mocap_worker_survives_the_signals_that_land_the_drones():
+    """Ctrl-C in the terminal, a dropped SSH session (SIGHUP) and ``timeout`` signal the whole foreground
+    process group; the worker must keep streaming poses while the loop lands the drones."""
+    import os
+
+    lab = mock_lab()
+    source = MotionCaptureSource("mock", lab.mocap.connect_cfg(), timeout_s=20.0)
+    try:
+        worker = source._proc.pid
+        assert os.getpgid(worker) != os.getpgid(0) and os.getsid(worker) != os.getsid(0)  # not in our group
+        deadline, frames = time.monotonic() + 10.0, []
+        while len(frames) < 3 and time.monotonic() < deadline:
+            time.sleep(0.02)
+            frames += source.read(time.monotonic())
+    finally:
+        source.close()
+    assert len(frames) >= 3

@@ -6,6 +6,7 @@ their motors run), not against the loop's own beliefs.
 
 import dataclasses
 import json
+import math
 from pathlib import Path
 
 import matplotlib
@@ -22,7 +23,7 @@ from marlander_lite.deploy.plots import plot_timeline, plot_trajectories
 from marlander_lite.deploy.pose_sources import SimulatedPoseSource
 from marlander_lite.deploy.rehearsal import rehearse
 from marlander_lite.deploy.sim_world import SimulatedWorld, make_simulator
-from marlander_lite.policy_file import PolicyContract, load_policy, save_policy
+from marlander_lite.policy_file import load_policy
 
 matplotlib.use("Agg")
 
@@ -35,19 +36,9 @@ except ImportError:  # the PyBullet swarm is not part of this checkout
 
 
 @pytest.fixture(scope="module")
-def policy_path(tmp_path_factory) -> Path:
-    """A real policy file: linear, a P-controller on each drone's position relative to a point 5 cm under its
-    goal, stiffer horizontally so that the drone is over its pad before it is down (v_xy = -3 p_xy,
-    v_z = -1.2 (p_z + 0.05) m/s before the lab limit)."""
-    weight, bias = np.zeros((6, 26)), np.zeros(6)
-    for i in range(2):
-        weight[3 * i : 3 * i + 3, 13 * i : 13 * i + 3] = -np.diag([1.0, 1.0, 0.4])
-        bias[3 * i + 2] = -0.4 * 0.05
-    contract = PolicyContract(
-        num_drones=2, max_speed=3.0, policy_hz=24.0, activation="relu", hidden_sizes=(), normalize_observations=False
-    )
-    path = tmp_path_factory.mktemp("policy") / "p_controller.safetensors"
-    return save_policy(path, contract, {"actor.0.weight": weight, "actor.0.bias": bias})
+def policy_path(p_controller_policy) -> Path:
+    """The linear P-controller of conftest.py: it would land; a fault replaces one drone's action."""
+    return p_controller_policy
 
 
 @pytest.fixture(scope="module")
@@ -244,3 +235,155 @@ def test_arming_refuses_a_take_off_height_below_an_elevated_plate(lab, policy_pa
     result = rehearse(low, policy_path)
     [event] = result.mission.events
     assert event.kind == "arming_failed" and "is not 0.3 m above the pads" in event.message
+
+
+@pytest.fixture
+def pointmass_config(tmp_path) -> Path:
+    config = tmp_path / "lab.yaml"
+    config.write_text(EXAMPLE_CONFIG.read_text().replace("simulator: pybullet", "simulator: pointmass"))
+    return config
+
+
+def test_hardware_without_a_terminal_is_refused_before_connecting(pointmass_config, policy_path, monkeypatch, capsys):
+    """No terminal (a script, cron, ssh host cmd) and no --yes: refused, nothing contacted; --yes still flies."""
+    import io
+
+    from marlander_lite.deploy import pose_sources
+
+    contacted = []
+
+    def no_mocap(*args, **kwargs):
+        contacted.append(args)
+        raise ConnectionError("no motion-capture server in this test")
+
+    monkeypatch.setattr(pose_sources, "MotionCaptureSource", no_mocap)
+    monkeypatch.setattr("sys.stdin", io.StringIO(""))
+    args = ["deploy", "--config", str(pointmass_config), "--policy", str(policy_path)]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert contacted == [] and len(err.strip().splitlines()) == 1
+    assert "without a terminal" in err and "--yes" in err
+    assert main([*args, "--yes"]) == 2 and len(contacted) == 1  # goes on to connect
+    assert "no motion-capture server" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--fault-at", "nan"], "'nan' is not a finite number >= 0"),
+        (["--fault-at", "inf"], "'inf' is not a finite number >= 0"),
+        (["--fault-at", "-1"], "'-1' is not a finite number >= 0"),
+        (["--fault-duration", "0"], "'0' is not a finite number > 0"),
+        (["--fault-duration", "nan"], "'nan' is not a finite number > 0"),
+        (["--fault-drone", "-1"], "'-1' is not a drone index"),
+        (["--fault-drone", "2"], "Fault drone index 2 does not exist; the lab has 2 drones"),
+        (["--fault-at", "60"], "would never happen: the flight ends 60 s after the policy starts at the latest"),
+    ],
+)
+def test_impossible_faults_are_refused_when_parsed(extra, message, pointmass_config, policy_path, tmp_path, capsys):
+    log = tmp_path / "never.jsonl"
+    args = ["deploy", "--sim", "--config", str(pointmass_config), "--policy", str(policy_path), "--log", str(log)]
+    with pytest.raises(SystemExit) as exit_info:
+        main([*args, "--inject", "nan-pose", *extra])
+    assert exit_info.value.code == 2 and message in capsys.readouterr().err
+    assert not log.exists()  # refused before anything ran
+
+
+def test_a_fault_that_never_happened_fails_the_rehearsal(pointmass_config, policy_path, tmp_path, capsys):
+    """The drones land about 3 s after the policy starts: a fault due at 30 s is never injected."""
+    args = ["deploy", "--sim", "--config", str(pointmass_config), "--policy", str(policy_path)]
+    assert main([*args, "--log", str(tmp_path / "late.jsonl"), "--inject", "dropout", "--fault-at", "30"]) == 1
+    captured = capsys.readouterr()
+    assert "never injected" in captured.err and "NEVER INJECTED" in captured.out
+    assert main([*args, "--log", str(tmp_path / "drone1.jsonl"), "--inject", "occlusion", "--fault-drone", "1"]) == 0
+    assert "cf2 occluded" in capsys.readouterr().out  # index 1 is the second drone
+    for bad in (dict(start_s=math.nan), dict(start_s=math.inf), dict(duration_s=math.nan), dict(drone=-1)):
+        with pytest.raises(ValueError):
+            FaultSpec("dropout", **bad)
+
+
+def test_a_flight_log_never_overwrites_the_policy_or_the_config(pointmass_config, policy_path, tmp_path, capsys):
+    policy = tmp_path / "policy.safetensors"
+    policy.write_bytes(policy_path.read_bytes())
+    args = ["deploy", "--sim", "--config", str(pointmass_config), "--policy", str(policy)]
+    (tmp_path / "link.safetensors").symlink_to(policy)
+    (tmp_path / "hard.safetensors").hardlink_to(policy)
+    (tmp_path / "sub").mkdir()
+    sneaky = tmp_path / "sub" / ".." / "policy.safetensors"
+    for target in (policy, tmp_path / "link.safetensors", tmp_path / "hard.safetensors", sneaky, pointmass_config):
+        for force in ([], ["--force"]):
+            with pytest.raises(SystemExit) as exit_info:
+                main([*args, "--log", str(target), *force])
+            assert exit_info.value.code == 2 and "is never overwritten" in capsys.readouterr().err
+    assert policy.read_bytes() == policy_path.read_bytes()
+    assert "simulator: pointmass" in pointmass_config.read_text()
+    with pytest.raises(SystemExit):
+        main([*args, "--log", str(tmp_path / "new.jsonl"), "--plot", str(policy)])
+    assert policy.read_bytes() == policy_path.read_bytes()
+
+
+def test_an_existing_log_needs_force(pointmass_config, policy_path, tmp_path, capsys):
+    old = tmp_path / "old.jsonl"
+    old.write_text("yesterday's flight\n")
+    args = ["deploy", "--sim", "--config", str(pointmass_config), "--policy", str(policy_path), "--log", str(old)]
+    with pytest.raises(SystemExit) as exit_info:
+        main(args)
+    assert exit_info.value.code == 2 and "add --force" in capsys.readouterr().err
+    assert old.read_text() == "yesterday's flight\n"
+    assert main([*args, "--force"]) == 0
+    assert read_flight_log(old).summary["success"] is True
+    hardware = ["deploy", "--config", str(pointmass_config), "--policy", str(policy_path), "--log", str(old)]
+    with pytest.raises(SystemExit):  # on hardware, never, even with --force
+        main([*hardware, "--yes", "--force"])
+    assert "exists already" in capsys.readouterr().err
+
+
+@pytest.mark.skipif("pybullet" not in SIMULATORS, reason="needs the PyBullet swarm")
+def test_the_pybullet_rehearsal_flies_through_the_firmware_tracker(lab, policy_path):
+    """What runs on the drone by default; the simulator's PID on request, whatever the lab config says."""
+    import inspect
+
+    from marlander_lite.crazyflie.simulator import CrazyflieSwarm
+
+    if "controller" not in inspect.signature(CrazyflieSwarm).parameters:
+        pytest.skip("this PyBullet swarm has no firmware tracker")
+    sim = make_simulator(lab, "pybullet")
+    assert sim.controller_kind == "firmware"
+    sim.close()
+    sim = make_simulator(lab, "pybullet", controller="pid")
+    assert sim.controller_kind == "pid"
+    sim.close()
+    with pytest.raises(ValueError, match="Unknown controller"):
+        make_simulator(lab, "pybullet", controller="lqr")
+    result = rehearse(lab, policy_path, simulator="pybullet", controller="pid")
+    assert result.mission.success and result.safe, result.summary()
+
+
+def test_drones_start_clear_of_everywhere_a_moving_plate_goes(lab):
+    """A UR10 sweeping its plate over a drone standing on the floor would hit it on take-off."""
+    moving = lab.replace(simulation=SimulationConfig(simulator="pointmass", platform="moving-arc", max_time_s=30.0))
+    for seed in range(20):
+        world = SimulatedWorld(moving, make_simulator(moving, "pointmass"), seed=seed)
+        path = world._plate_path(world.pad_positions().mean(axis=0))
+        assert len(path) > 100 and np.ptp(path, axis=0).max() > 0.3  # the plate moves
+        gaps = np.linalg.norm(path[None, :, :] - world.start_positions[:, None, :2], axis=2)
+        assert gaps.min() >= 0.8, (seed, gaps.min())
+
+
+@pytest.mark.skipif("pybullet" not in SIMULATORS, reason="needs the PyBullet swarm")
+def test_a_drone_resting_on_a_moving_plate_next_to_its_pad_rides_along(lab):
+    """PyBullet calls a drone touching the plate next to its pad "other contact"; it must still ride along."""
+    moving = lab.replace(
+        simulation=SimulationConfig(simulator="pybullet", platform="moving-linear", platform_speed=0.3)
+    )
+    world = SimulatedWorld(moving, make_simulator(moving, "pybullet"), seed=0)
+    pads = world.pad_positions()
+    start = pads + np.array([0.0, 0.0, world.sim.task.landed_height])
+    start[0, 1] += 0.17  # cf1 on the plate, off its pad (radius 0.1), motors off: a crash next to it
+    world.sim.place(0, start)
+    world.sim.stop_motors(np.ones((1, 2), dtype=bool))
+    world.sleep_until(world.time + 2.0)
+    offset = world.drone_positions() - world.pad_positions()
+    assert world.pad_landed.all() and np.linalg.norm(world.pad_positions() - pads, axis=1).min() > 0.15
+    np.testing.assert_allclose(offset[0, :2], [0.0, 0.17], atol=0.02)
+    world.close()

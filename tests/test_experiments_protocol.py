@@ -1,5 +1,11 @@
 """Controllers, the seeded trial protocol, result files and the ``marlander reproduce`` command."""
 
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -265,3 +271,94 @@ def test_cli_writes_tables_figures_and_refreshes_the_document(tmp_path):
     (out / "summary_by_condition.csv").unlink()
     assert main(["reproduce", "--report-only", "--out", str(out), "--no-doc", "--no-figures"]) == 0
     assert (out / "summary_by_condition.csv").read_text() == before
+
+
+# ---------------------------------------------------------------------------- shipped results are protected
+
+SMALL = ["reproduce", "--controllers", "baseline", "--conditions", "static-floor", "--trials", "2", "--workers", "1"]
+
+
+@pytest.fixture
+def shipped(tmp_path, monkeypatch):
+    """A working copy in miniature: shipped data/results/pointmass and docs/reproduction.md, as cwd."""
+    monkeypatch.chdir(tmp_path)
+    results = tmp_path / "data" / "results" / "pointmass"
+    results.mkdir(parents=True)
+    (results / "trials.csv").write_text("shipped\n" * 5001)
+    (results / "run.json").write_text(json.dumps({"config": {"controllers": ["marlander", "baseline"]}}))
+    doc = tmp_path / "docs" / "reproduction.md"
+    doc.parent.mkdir()
+    doc.write_text("<!-- include: ../data/results/pointmass/run.md -->\nshipped\n<!-- end include -->\n")
+    return results, doc
+
+
+def test_a_partial_run_goes_to_its_own_folder_and_leaves_shipped_results_alone(shipped, capsys):
+    results, doc = shipped
+    before = (results / "trials.csv").read_text(), doc.read_text()
+    assert main([*SMALL, "--no-figures"]) == 0
+    assert ((results / "trials.csv").read_text(), doc.read_text()) == before
+    (run,) = Path("runs/reproduce").iterdir()
+    assert run.name.startswith("pointmass-") and len((run / "trials.csv").read_text().splitlines()) == 3
+    assert not (run / ".reproduce.lock").exists()  # released
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--out", "data/results/pointmass"], "only a full run with --update-shipped"),
+        (["--out", "data/results/new-folder"], "only a full run with --update-shipped"),
+        (["--update-shipped"], "--trials 2 (the full protocol flies 100"),
+        (["--doc", "docs/reproduction.md"], "--doc docs/reproduction.md is refreshed only"),
+    ],
+)
+def test_writing_shipped_results_needs_a_full_run_with_update_shipped(shipped, capsys, extra, message):
+    results, doc = shipped
+    before = (results / "trials.csv").read_text(), doc.read_text()
+    with pytest.raises(SystemExit) as exit_info:
+        main([*SMALL, *extra])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert message in err and len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    assert ((results / "trials.csv").read_text(), doc.read_text()) == before
+    assert not Path("runs").exists() and not Path("data/results/new-folder").exists()
+
+
+def test_update_shipped_lists_every_reason_a_run_is_partial(shipped):
+    from marlander_lite.experiments.commands import partial_reasons
+
+    config = ProtocolConfig(controllers=("baseline",), conditions=("static-floor",), trials="paper")
+    reasons = partial_reasons(config, quick=False, controllers=("marlander", "baseline"))
+    assert len(reasons) == 3 and "leaves out marlander" in reasons[2]
+    full = ProtocolConfig(controllers=("baseline", "marlander"), trials=100)
+    assert partial_reasons(full, quick=False, controllers=("marlander", "baseline")) == []
+
+
+def test_a_folder_in_use_is_refused_and_a_stale_lock_taken_over(tmp_path, capsys):
+    out = tmp_path / "results"
+    out.mkdir()
+    lock = out / ".reproduce.lock"
+    lock.write_text(f"{os.getpid()}\n")  # a live process holds it
+    with pytest.raises(SystemExit) as exit_info:
+        main([*SMALL, "--no-figures", "--out", str(out)])
+    assert exit_info.value.code == 2
+    assert f"in use by another 'marlander reproduce' (PID {os.getpid()}" in capsys.readouterr().err
+    assert not (out / "trials.csv").exists()
+
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    lock.write_text(f"{dead.pid}\n")
+    assert main([*SMALL, "--no-figures", "--out", str(out)]) == 0
+    assert f"Taking over the stale lock {lock} (PID {dead.pid} is not running)" in capsys.readouterr().err
+    assert (out / "trials.csv").is_file() and not lock.exists()
+
+
+@pytest.mark.usefixtures("shipped")
+def test_update_shipped_targets_the_shipped_folder_with_its_controllers():
+    from marlander_lite.cli import build_parser
+    from marlander_lite.experiments.commands import plan_output
+
+    config, out, refreshed = plan_output(build_parser().parse_args(["reproduce", "--update-shipped"]))
+    assert out == Path("data/results/pointmass") and refreshed == Path("docs/reproduction.md")
+    assert config.controllers == ("marlander", "baseline") and config.trials == 100  # those of the shipped run
+    config, out, refreshed = plan_output(build_parser().parse_args(["reproduce", "--quick"]))
+    assert out.parent == Path("runs/reproduce") and out.name.startswith("pointmass-quick-") and refreshed is None

@@ -21,6 +21,7 @@ EXPECTED_TEXT = {
     "05_moving_platform.ipynb": ["budget: small"],
     "06_baselines.ipynb": ["budget: small"],
     "07_deployment_rehearsal.ipynb": ["budget: small", "fault none: armed=True, on pad=[True, True]"],
+    "08_transfer.ipynb": ["budget: small", "### quick-cpu", "| floor | "],
 }
 
 

@@ -1,13 +1,26 @@
 """Pickle-free policy files: export -> load gives the same actions, and bad files are refused."""
 
+import json
+from dataclasses import asdict
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
+from safetensors.numpy import save_file
 from stable_baselines3 import PPO
 from stable_baselines3.common.vec_env import VecNormalize
 
 import marlander_lite
-from marlander_lite.policy_file import PolicyFileError, load_policy, read_contract
+from marlander_lite.policy_file import (
+    FORMAT,
+    FORMAT_VERSION,
+    PolicyContract,
+    PolicyFileError,
+    load_policy,
+    read_contract,
+    save_policy,
+)
 from marlander_lite.task import TaskConfig
 from marlander_lite.training.export import export_policy
 
@@ -63,3 +76,139 @@ def test_bad_observations_are_refused(trained):
         policy.act(np.zeros(13))
     with pytest.raises(ValueError, match="NaN"):
         policy.act(np.full(26, np.nan))
+
+
+# ---------------------------------------------------------------------------- defects 3 and 4: nothing is trusted
+
+SHIPPED = sorted((Path(__file__).parents[1] / "data" / "policies").glob("*.safetensors"))
+
+
+def small_contract(**changes) -> dict:
+    """A valid contract (2 drones, one hidden layer of 8, normalised inputs) as the JSON dict of a file."""
+    contract = PolicyContract(
+        num_drones=2, max_speed=3.0, policy_hz=24.0, activation="relu", hidden_sizes=(8,), normalize_observations=True
+    )
+    return {**asdict(contract), **changes}
+
+
+def small_tensors(**changes) -> dict:
+    rng = np.random.default_rng(0)
+    tensors = {
+        "actor.0.weight": rng.normal(size=(8, 26)),
+        "actor.0.bias": rng.normal(size=8),
+        "actor.1.weight": rng.normal(size=(6, 8)),
+        "actor.1.bias": rng.normal(size=6),
+        "obs_mean": rng.normal(size=26),
+        "obs_var": rng.uniform(0.5, 2.0, size=26),
+    }
+    tensors.update(changes)
+    return {k: v for k, v in tensors.items() if v is not None}
+
+
+def write_raw(path: Path, contract: dict | str, tensors: dict) -> Path:
+    """A policy file written without save_policy's checks, as a broken exporter or an edit by hand would."""
+    meta = {"format": FORMAT, "format_version": str(FORMAT_VERSION)}
+    meta["contract"] = contract if isinstance(contract, str) else json.dumps(contract)
+    save_file({k: np.ascontiguousarray(v, dtype=np.float32) for k, v in tensors.items()}, str(path), metadata=meta)
+    return path
+
+
+@pytest.mark.parametrize("path", SHIPPED, ids=lambda p: p.name)
+def test_every_shipped_policy_still_loads(path):
+    policy = load_policy(path)
+    assert np.isfinite(policy.act(np.zeros(policy.contract.obs_dim))).all()
+
+
+def test_a_valid_small_file_loads(tmp_path):
+    policy = load_policy(write_raw(tmp_path / "ok.safetensors", small_contract(), small_tensors()), TaskConfig())
+    assert policy.act(np.zeros((4, 26))).shape == (4, 6)
+
+
+@pytest.mark.parametrize(
+    ("tensors", "message"),
+    [
+        ({"actor.0.weight": np.full((8, 26), np.nan)}, r"actor.0.weight has 208 NaN or infinite value\(s\)"),
+        ({"actor.1.bias": np.array([np.inf, 0, 0, 0, 0, 0])}, r"actor.1.bias has 1 NaN or infinite"),
+        ({"obs_var": -np.ones(26)}, r"obs_var has 26 negative value\(s\)"),
+        ({"obs_mean": np.zeros(13)}, r"obs_mean has shape \[13\], the contract needs \[26\]"),
+        ({"obs_var": np.zeros(27)}, r"obs_var has shape \[27\]"),
+        ({"actor.1.weight": np.zeros((6, 7))}, r"actor.1.weight has shape \[6, 7\], the contract needs \[6, 8\]"),
+        ({"actor.0.weight": np.zeros((8, 13))}, r"layers 26 -> 8 -> 6\).*actor.0.weight has shape \[8, 13\]"),
+        ({"actor.1.bias": None}, r"missing tensor\(s\) \['actor.1.bias'\]"),
+        ({"actor.2.weight": np.zeros((6, 6))}, r"unexpected tensor\(s\) \['actor.2.weight'\]"),
+        ({"obs_mean": None, "obs_var": None}, r"missing tensor\(s\) \['obs_mean', 'obs_var'\]"),
+    ],
+)
+def test_tensors_that_cannot_give_a_finite_action_are_refused(tmp_path, tensors, message):
+    path = write_raw(tmp_path / "bad.safetensors", small_contract(), small_tensors(**tensors))
+    with pytest.raises(PolicyFileError, match=message):
+        load_policy(path)
+
+
+def test_zero_variance_without_epsilon_and_overflowing_weights_are_refused(tmp_path):
+    path = write_raw(
+        tmp_path / "zero.safetensors", small_contract(obs_epsilon=0.0), small_tensors(obs_var=np.zeros(26))
+    )
+    with pytest.raises(PolicyFileError, match="obs_var \\+ obs_epsilon is 0"):
+        load_policy(path)
+    # finite float32 weights, but ten layers of 3e38 overflow float64: only running the network shows it
+    hidden = (4,) * 10
+    big = {f"actor.{i}.weight": np.full((4, 26 if i == 0 else 4), 3e38) for i in range(10)}
+    big |= {f"actor.{i}.bias": np.zeros(4) for i in range(10)}
+    big |= {"actor.10.weight": np.full((6, 4), 3e38), "actor.10.bias": np.zeros(6)}
+    path = write_raw(
+        tmp_path / "big.safetensors", small_contract(hidden_sizes=hidden, normalize_observations=False), big
+    )
+    with pytest.raises(PolicyFileError, match=r"NaN or infinite actions for \d+ of 515 test observations"):
+        load_policy(path)
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"activation": "gelu"}, r"activation: Input should be 'relu' or 'tanh' \(got 'gelu'\)"),
+        ({"num_drones": "2"}, r"num_drones: Input should be a valid integer \(got '2'\)"),
+        ({"num_drones": 2.0}, r"num_drones: Input should be a valid integer"),
+        ({"num_drones": 0}, r"num_drones: Input should be greater than or equal to 1"),
+        ({"max_speed": "3"}, r"max_speed: Input should be a valid number"),
+        ({"policy_hz": None}, r"policy_hz: Input should be a valid number"),
+        ({"normalize_observations": 1}, r"normalize_observations: Input should be a valid boolean"),
+        ({"hidden_sizes": [8.5]}, r"hidden_sizes.0: Input should be a valid integer"),
+        ({"hidden_sizes": "8"}, r"hidden_sizes: Input should be a valid tuple"),
+        ({"obs_per_drone": 14}, r"obs_per_drone: Input should be 13 or 16"),
+        ({"obs_clip": -1.0}, r"obs_clip: Input should be greater than 0"),
+        ({"surprise": 1}, r"surprise: unknown field"),
+    ],
+)
+def test_every_contract_field_is_validated(tmp_path, changes, message):
+    path = write_raw(tmp_path / "bad.safetensors", small_contract(**changes), small_tensors())
+    with pytest.raises(PolicyFileError, match=message):
+        load_policy(path)
+
+
+def test_hidden_sizes_must_agree_with_the_tensors(tmp_path):
+    path = write_raw(tmp_path / "bad.safetensors", small_contract(hidden_sizes=[16]), small_tensors())
+    with pytest.raises(PolicyFileError, match=r"layers 26 -> 16 -> 6.*actor.0.weight has shape \[8, 26\]"):
+        load_policy(path)
+    path = write_raw(tmp_path / "bad.safetensors", small_contract(hidden_sizes=[8, 8]), small_tensors())
+    with pytest.raises(PolicyFileError, match=r"missing tensor\(s\) \['actor.2.bias', 'actor.2.weight'\]"):
+        load_policy(path)
+
+
+def test_a_broken_contract_text_is_refused(tmp_path):
+    fields = small_contract()
+    for text, message in [
+        (json.dumps(fields)[:-5], "not valid JSON"),
+        ('{"num_drones": 2, "num_drones": 3}', r"repeats key\(s\) \['num_drones'\]"),
+        ("[1, 2]", "Input should be a dictionary"),
+        ("[" * 100_000 + "]" * 100_000, "not valid JSON"),
+        (json.dumps({k: v for k, v in fields.items() if k != "max_speed"}), "max_speed: required field missing"),
+    ]:
+        with pytest.raises(PolicyFileError, match=message):
+            load_policy(write_raw(tmp_path / "bad.safetensors", text, small_tensors()))
+
+
+def test_save_policy_refuses_a_contract_no_reader_would_accept(tmp_path):
+    contract = PolicyContract(**{**small_contract(), "hidden_sizes": (8,), "activation": "gelu"})
+    with pytest.raises(PolicyFileError, match="activation"):
+        save_policy(tmp_path / "p.safetensors", contract, small_tensors())

@@ -1,17 +1,23 @@
 """Training presets, the training loop, its files, determinism, a real learning threshold, the CLI."""
 
 import json
+import signal
+import subprocess
+import sys
+import time
 
 import numpy as np
 import pytest
 from safetensors.numpy import load_file
+from stable_baselines3.common.callbacks import BaseCallback
 
 from marlander_lite.cli import main
 from marlander_lite.plotting import plot_training_curves, read_progress
 from marlander_lite.policy_file import load_policy
 from marlander_lite.training.evaluation import run_episodes, summarise
 from marlander_lite.training.presets import PRESETS, TrainConfig, get_preset
-from marlander_lite.training.train import train
+from marlander_lite.training.resume import TrainingInterrupted
+from marlander_lite.training.train import resume, train
 
 # Every drone starts within 1 m above its own pad: landing is learnt in tens of thousands of steps.
 EASY_TASK = {"spawn_near_pad_fraction": 1.0}
@@ -27,6 +33,8 @@ def tiny(steps: int, **changes) -> TrainConfig:
         learning_rate=1e-3,
         net_arch=(64, 64),
         task=EASY_TASK,
+        dynamics={"randomization": 0.3},  # the PPO path on the simple randomisation; robustness is tested elsewhere
+        sensing="vicon",
         checkpoint_every=0,
         torch_threads=1,
     )
@@ -138,3 +146,111 @@ def test_fine_tuning_continues_a_run_with_its_drones_observation_and_networks(tm
     assert json.loads(files.config.read_text())["finished"]["steps"] >= 4096  # counted on from the source run
     with pytest.raises(FileNotFoundError, match="not a finished training run"):
         continue_from(tiny(2048), tmp_path / "nothing")
+
+
+def test_periodic_checkpoints_of_a_fine_tuned_run_start_after_the_source_steps(tmp_path):
+    from marlander_lite.training.train import continue_from
+
+    source = train(tiny(2048), tmp_path / "source")  # 2048 steps
+    files = train(continue_from(tiny(4096, checkpoint_every=2048), source.root), tmp_path / "tuned")
+    saved = sorted(int(p.stem.split("_")[1]) for p in files.checkpoints.glob("model_*.zip"))
+    assert saved == [4096, 6144]  # not one checkpoint per step until the counter passed 2048
+
+
+# ---------------------------------------------------------------------------- interrupt and resume
+
+
+class SignalAt(BaseCallback):
+    """Sends this process ``signum`` once training passes ``step`` steps, as Ctrl-C would."""
+
+    def __init__(self, step: int, signum: int = signal.SIGINT) -> None:
+        super().__init__()
+        self.step, self.signum, self.sent = step, signum, False
+
+    def _on_step(self) -> bool:
+        if not self.sent and self.num_timesteps >= self.step:
+            self.sent = True
+            signal.raise_signal(self.signum)
+        return True
+
+
+def progress_rows(run) -> list[str]:
+    return (run / "logs" / "progress.csv").read_text().splitlines()
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_interrupted_run_saves_a_checkpoint_and_resumes_to_the_uninterrupted_result(tmp_path, signum):
+    config = tiny(8192, seed=5)  # 4 rollouts of 64 envs x 32 steps
+    with pytest.raises(TrainingInterrupted, match="--resume") as stopped:
+        train(config, tmp_path / "run", callbacks=(SignalAt(3000, signum),))
+    assert stopped.value.steps == 4096  # the next rollout boundary after the signal
+    checkpoint = tmp_path / "run" / "resume"
+    for name in ("model.zip", "vecnormalize.pkl", "state.pkl"):
+        assert (checkpoint / name).is_file(), name
+    assert not (tmp_path / "run" / "policy.safetensors").exists()
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # handlers put back
+    rows_before = progress_rows(tmp_path / "run")
+    assert len(rows_before) == 1 + 2  # header + 2 rollouts
+
+    files = resume(tmp_path / "run")
+    record = json.loads(files.config.read_text())
+    assert record["finished"]["steps"] == 8192 and record["resumed"][0]["steps"] == 4096
+    assert not checkpoint.exists()
+    rows = progress_rows(tmp_path / "run")
+    assert rows[: len(rows_before)] == rows_before and len(rows) == 1 + 4  # continued, one header
+    steps = read_progress(files.root)["time/total_timesteps"]
+    np.testing.assert_array_equal(steps, [2048, 4096, 6144, 8192])
+
+    # Every random state was restored: the weights are those of a run that never stopped.
+    whole = train(config, tmp_path / "whole")
+    a, b = load_file(str(files.policy)), load_file(str(whole.policy))
+    for key in a:
+        np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+    with pytest.raises(ValueError, match="already finished"):
+        resume(tmp_path / "run")
+
+
+def test_a_run_whose_environments_cannot_be_saved_resumes_with_fresh_episodes(tmp_path, monkeypatch):
+    """The PyBullet path: no environment snapshot, so the envs restart with a new seed on resume."""
+    import marlander_lite.training.resume as resume_module
+
+    monkeypatch.setattr(resume_module, "SNAPSHOT_SIMULATORS", ())
+    with pytest.raises(TrainingInterrupted):
+        train(tiny(8192, seed=5), tmp_path / "run", callbacks=(SignalAt(1000),))
+    files = resume(tmp_path / "run")
+    assert json.loads(files.config.read_text())["finished"]["steps"] == 8192
+    np.testing.assert_array_equal(read_progress(files.root)["time/total_timesteps"], [2048, 4096, 6144, 8192])
+
+
+@pytest.mark.slow
+def test_ctrl_c_on_the_command_line_saves_a_checkpoint_and_resume_finishes_the_run(tmp_path):
+    """The real thing: ``marlander train`` in a subprocess, SIGINT after the first logged rollout, ``--resume``."""
+    run = tmp_path / "run"
+    command = [sys.executable, "-m", "marlander_lite.cli", "train"]
+    # quick-cpu: 256 envs x 64 steps = 16,384 steps per rollout; 20,000 steps -> 2 rollouts (32,768 steps).
+    child = subprocess.Popen(
+        [*command, "--preset", "quick-cpu", "--steps", "20000", "--out", str(run), "--no-progress"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    log = run / "logs" / "progress.csv"
+    deadline = time.monotonic() + 300
+    while not (log.is_file() and len(log.read_text().splitlines()) >= 2):
+        assert child.poll() is None and time.monotonic() < deadline, child.communicate()
+        time.sleep(0.2)
+    child.send_signal(signal.SIGINT)
+    _, err = child.communicate(timeout=300)
+    assert child.returncode == 130, err
+    assert "Traceback" not in err and f"marlander train --resume {run}" in err
+    assert {p.name for p in (run / "resume").iterdir()} == {"model.zip", "vecnormalize.pkl", "state.pkl"}
+    assert "finished" not in json.loads((run / "config.json").read_text())
+
+    done = subprocess.run([*command, "--resume", str(run), "--no-progress"], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    record = json.loads((run / "config.json").read_text())
+    assert record["finished"]["steps"] == 32_768 and record["resumed"][0]["steps"] == 16_384
+    lines = log.read_text().splitlines()
+    assert len(lines) == 3 and lines.count(lines[0]) == 1  # one header, one row per rollout
+    np.testing.assert_array_equal(read_progress(run)["time/total_timesteps"], [16_384, 32_768])
+    assert load_policy(run / "policy.safetensors").contract.extra["steps"] == 32_768

@@ -15,6 +15,7 @@ import numpy as np
 
 from marlander_lite.crazyflie.control import PIDGains
 from marlander_lite.crazyflie.params import CF2XParams, PhysicsConfig
+from marlander_lite.crazyflie.perturb import Controller, Perturbation
 from marlander_lite.crazyflie.simulator import CrazyflieSwarm
 from marlander_lite.episodes import SwarmState
 from marlander_lite.platforms import PlatformConfig
@@ -37,11 +38,16 @@ class CrazyflieBatch:
         physics: PhysicsConfig | None = None,
         drone: CF2XParams | None = None,
         gains: PIDGains | None = None,
+        controller: Controller = "pid",
+        perturbation: Perturbation | None = None,
     ) -> None:
         if num_envs < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}.")
         self.task, self.platform, self.num_envs = task_config, platform, num_envs
-        self.swarms = [CrazyflieSwarm(task_config, platform, 1, physics, drone, gains) for _ in range(num_envs)]
+        self.swarms = [
+            CrazyflieSwarm(task_config, platform, 1, physics, drone, gains, False, controller, perturbation)
+            for _ in range(num_envs)
+        ]
 
     def reset(self, env_ids: np.ndarray, rng: np.random.Generator) -> None:
         for i in np.asarray(env_ids):

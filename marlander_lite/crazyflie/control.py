@@ -35,7 +35,8 @@ class PIDGains:
     """Gains and limits of :class:`CascadedPID` (per axis x, y, z).
 
     The position gains and the attitude P and I gains are the published ones for this kind of
-    controller on a CF2X. The published attitude D gains (20000, 20000, 12000) assume a faster
+    controller on a CF2X (Source: gym-pybullet-drones' ``DSLPIDControl``, Panerati et al. 2021;
+    docs/references.md). The published attitude D gains (20000, 20000, 12000) assume a faster
     inner loop: held for one 48 Hz tick, their damping torque changes the body rate by about
     4 times the rate itself, so the discrete loop is unstable (spectral radius 3.3 in roll,
     :func:`attitude_loop_spectral_radius`) and only the torque clip keeps it to a small, fast

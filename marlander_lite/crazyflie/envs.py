@@ -14,6 +14,7 @@ from stable_baselines3.common.vec_env import SubprocVecEnv, VecEnv, VecMonitor
 from marlander_lite.crazyflie.batch import CrazyflieBatch
 from marlander_lite.crazyflie.control import PIDGains
 from marlander_lite.crazyflie.params import CF2XParams, PhysicsConfig, build_physics
+from marlander_lite.crazyflie.perturb import Controller, Perturbation, build_perturbation, check_controller
 from marlander_lite.crazyflie.simulator import CrazyflieSwarm
 from marlander_lite.envs.gym_env import SwarmLandingEnv
 from marlander_lite.envs.options import COMMON_OPTIONS, build_configs, check_num_envs, reject_unknown
@@ -23,7 +24,7 @@ from marlander_lite.platforms import PlatformConfig
 from marlander_lite.sensing import SensingConfig
 from marlander_lite.task import TaskConfig
 
-CRAZYFLIE_OPTIONS = (*COMMON_OPTIONS, "physics", "drone", "gains", "gui")
+CRAZYFLIE_OPTIONS = (*COMMON_OPTIONS, "physics", "drone", "gains", "gui", "controller", "perturbation")
 """Keyword options of every PyBullet face; the gymnasium env also takes ``render_mode`` and ``video_path``."""
 RenderMode = Literal["rgb_array", "human"]
 RENDER_MODES: tuple[str, ...] = ("rgb_array", "human")
@@ -41,6 +42,8 @@ def build_simulator(
     drone: CF2XParams | None = None,
     gains: PIDGains | None = None,
     gui: bool = False,
+    controller: Controller = "pid",
+    perturbation: Perturbation | Mapping[str, Any] | None = None,
 ) -> tuple[CrazyflieSwarm, SensingConfig]:
     """Validate the options (see :class:`CrazyflieLandingEnv`) and build the simulator."""
     task_config, platform_config, sensing_config = build_configs(num_drones, platform, platform_speed, task, sensing)
@@ -48,7 +51,18 @@ def build_simulator(
         raise TypeError(f"drone must be a CF2XParams, got {type(drone).__name__}.")
     if gains is not None and not isinstance(gains, PIDGains):
         raise TypeError(f"gains must be a PIDGains, got {type(gains).__name__}.")
-    simulator = CrazyflieSwarm(task_config, platform_config, 1, build_physics(physics), drone, gains, bool(gui))
+    check_controller(controller)
+    simulator = CrazyflieSwarm(
+        task_config,
+        platform_config,
+        1,
+        build_physics(physics),
+        drone,
+        gains,
+        bool(gui),
+        controller=controller,
+        perturbation=build_perturbation(perturbation),
+    )
     return simulator, sensing_config
 
 
@@ -94,16 +108,22 @@ class CrazyflieLandingEnv(SwarmLandingEnv):
     ## Arguments
     ``gymnasium.make("marlander_lite/CrazyflieLanding-v0", num_drones=2, platform="static-floor",
     platform_speed=None, task=None, sensing=None, physics=None, drone=None, gains=None, gui=False,
-    render_mode=None, video_path=None)``: ``platform`` is one of ``static-floor``,
-    ``static-elevated``, ``moving-linear``, ``moving-arc``; ``platform_speed`` the moving tool
-    speed (m/s, default 0.35); ``task`` a :class:`TaskConfig` or dict of fields to change
-    (``policy_hz`` sets the action rate); ``sensing`` a :class:`SensingConfig` or ``"vicon"``;
-    ``physics`` a :class:`PhysicsConfig`, ``"aero"`` (default: ground effect, drag, downwash) or
-    ``"bare"`` (rigid body and motors only), or a dict of its fields (e.g. ``{"control_hz": 30,
-    "downwash": False}``); ``drone`` a :class:`CF2XParams`; ``gains`` a :class:`PIDGains`;
-    ``gui`` opens a PyBullet window; ``render_mode="rgb_array"`` makes :meth:`render` return an
-    image, ``"human"`` opens the window; ``video_path`` records every episode as an animated GIF
-    ``<video_path stem>-<episode>.gif``.
+    controller="pid", perturbation=None, render_mode=None, video_path=None)``: ``platform`` is one of
+    ``static-floor``, ``static-elevated``, ``moving-linear``, ``moving-arc``; ``platform_speed`` the moving
+    tool speed (m/s, default 0.35); ``task`` a :class:`TaskConfig` or dict of fields to change
+    (``policy_hz`` sets the action rate); ``sensing`` a :class:`SensingConfig` or ``"vicon"``; ``physics`` a
+    :class:`PhysicsConfig`, ``"aero"`` (default: ground effect, drag, downwash) or ``"bare"`` (rigid body
+    and motors only), or a dict of its fields (e.g. ``{"control_hz": 30, "downwash": False}``); ``drone`` a
+    :class:`CF2XParams`; ``gains`` a :class:`PIDGains`; ``controller`` the velocity tracker: ``"pid"``
+    (default, our cascaded PID at 48 Hz, chasing ``p + u dt`` and ``u``) or ``"firmware"`` (the Crazyflie
+    firmware's own velocity PID, which follows ``send_velocity_world_setpoint`` on hardware: 100 Hz velocity
+    loop, attitude and rate loops at every physics step, tilt within 20 degrees; see
+    :mod:`marlander_lite.crazyflie.firmware`); ``perturbation`` a
+    :class:`~marlander_lite.crazyflie.perturb.Perturbation` or a dict of its fields (``{"mass_scale": 1.15,
+    "latency_s": 0.06, "gain_scale": 0.7}``: a drone heavier than its tracker believes, commands that arrive
+    late, softer or stiffer outer gains); ``gui`` opens a PyBullet window; ``render_mode="rgb_array"`` makes
+    :meth:`render` return an image, ``"human"`` opens the window; ``video_path`` records every episode as an
+    animated GIF ``<video_path stem>-<episode>.gif``.
     """
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": list(RENDER_MODES), "render_fps": 24}
@@ -119,6 +139,8 @@ class CrazyflieLandingEnv(SwarmLandingEnv):
         drone: CF2XParams | None = None,
         gains: PIDGains | None = None,
         gui: bool = False,
+        controller: Controller = "pid",
+        perturbation: Perturbation | Mapping[str, Any] | None = None,
         render_mode: RenderMode | None = None,
         video_path: str | os.PathLike | None = None,
         **unknown: Any,
@@ -127,7 +149,17 @@ class CrazyflieLandingEnv(SwarmLandingEnv):
         if render_mode is not None and render_mode not in RENDER_MODES:
             raise ValueError(f"Unknown render_mode {render_mode!r}; allowed: None, {', '.join(RENDER_MODES)}.")
         simulator, sensing_config = build_simulator(
-            num_drones, platform, platform_speed, task, sensing, physics, drone, gains, gui or render_mode == "human"
+            num_drones,
+            platform,
+            platform_speed,
+            task,
+            sensing,
+            physics,
+            drone,
+            gains,
+            gui or render_mode == "human",
+            controller,
+            perturbation,
         )
         super().__init__(simulator, sensing_config)
         self.render_mode = render_mode
@@ -226,16 +258,25 @@ def make_crazyflie_vec_env(
     check_num_envs(num_envs)
     if vectorization not in VECTORIZATIONS:
         raise ValueError(f"Unknown vectorization {vectorization!r}; allowed: {', '.join(VECTORIZATIONS)}.")
-    allowed = (*COMMON_OPTIONS, "physics", "drone", "gains")
+    allowed = (*COMMON_OPTIONS, "physics", "drone", "gains", "controller", "perturbation")
     reject_unknown({k: v for k, v in options.items() if k not in allowed}, allowed, "make_vec_env('crazyflie')")
     # Check the options here, in this process, so that a bad one fails with its own message.
     task_config, platform_config, sensing_config = build_configs(
         **{k: options[k] for k in COMMON_OPTIONS if k in options}
     )
     physics = build_physics(options.get("physics"))
+    controller = check_controller(options.get("controller", "pid"))
+    perturbation = build_perturbation(options.get("perturbation"))
     if vectorization == "batched":
         batch = CrazyflieBatch(
-            task_config, platform_config, int(num_envs), physics, options.get("drone"), options.get("gains")
+            task_config,
+            platform_config,
+            int(num_envs),
+            physics,
+            options.get("drone"),
+            options.get("gains"),
+            controller=controller,
+            perturbation=perturbation,
         )
         return LandingVecEnv(batch, sensing_config, seed)
     makers = [partial(_make_env, dict(options)) for _ in range(int(num_envs))]

@@ -14,15 +14,22 @@ differences, numpy only). Both simulators run through their
 Combined commands matter: a Crazyflie sinking at full speed has little thrust left to tilt with
 and barely accelerates sideways. A model fitted on single-axis steps misses that, and a policy
 trained on it dives at its pad and arrives with its sideways speed still unbraked.
+
+Either tracker can be identified (``controller="pid"`` or ``"firmware"``, optionally with a
+:class:`~marlander_lite.crazyflie.perturb.Perturbation`); :func:`identify_trackers` fits the point
+mass to the variants in :data:`TRACKER_VARIANTS`, which bound the point mass's domain randomisation.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from marlander_lite.crazyflie.params import PhysicsConfig
+from marlander_lite.crazyflie.perturb import Controller, Perturbation
 from marlander_lite.crazyflie.simulator import CrazyflieSwarm
 from marlander_lite.platforms import PlatformConfig
 from marlander_lite.pointmass.simulator import PointMassParams, PointMassSwarm
@@ -66,13 +73,20 @@ def fit_commands(hold: int = 12, brake: int = 12) -> np.ndarray:
     return np.array(commands)
 
 
-def crazyflie_response(commands: np.ndarray, task: TaskConfig, physics: PhysicsConfig | None = None) -> np.ndarray:
+def crazyflie_response(
+    commands: np.ndarray,
+    task: TaskConfig,
+    physics: PhysicsConfig | None = None,
+    controller: Controller = "pid",
+    perturbation: Perturbation | Mapping[str, Any] | None = None,
+) -> np.ndarray:
     """Velocities of a PyBullet Crazyflie after each policy step, ``(K, T, 3)`` m/s, for commands ``(K, T, 3)``.
 
-    Each of the K sequences starts from hover at :data:`START`, on a ``static-floor`` platform.
+    Each of the K sequences starts from hover at :data:`START`, on a ``static-floor`` platform,
+    flown by ``controller`` with ``perturbation`` (see :class:`CrazyflieSwarm`).
     """
     task = task.replace(num_drones=1)
-    sim = CrazyflieSwarm(task, PlatformConfig(), physics=physics)
+    sim = CrazyflieSwarm(task, PlatformConfig(), physics=physics, controller=controller, perturbation=perturbation)
     out = np.zeros_like(commands)
     try:
         for k, sequence in enumerate(commands):
@@ -137,18 +151,29 @@ def _from_theta(theta: np.ndarray) -> PointMassParams:
 
 def fit_point_mass(
     commands: np.ndarray,
-    target: np.ndarray,
-    task: TaskConfig,
+    target: np.ndarray | None = None,
+    task: TaskConfig | None = None,
     start: PointMassParams | None = None,
     iterations: int = 15,
+    *,
+    controller: Controller = "pid",
+    perturbation: Perturbation | Mapping[str, Any] | None = None,
+    physics: PhysicsConfig | None = None,
 ) -> PointMassFit:
     """Least-squares point-mass parameters (:data:`FITTED`) matching ``target`` ``(K, T, 3)`` m/s.
+
+    ``target`` defaults to the PyBullet Crazyflie's answer to ``commands``, flown by ``controller``
+    (``"pid"`` or ``"firmware"``) with ``perturbation`` and ``physics`` (:func:`crazyflie_response`);
+    ``task`` defaults to one drone at the default policy rate.
 
     Gauss-Newton on the logarithms of the :data:`FITTED` values (the tilt as its tangent; logs
     keep them positive): the Jacobian of the residual ``r = v_pm(theta) - target`` comes from central
     differences, and each step solves ``J d = -r`` with ``numpy.linalg.lstsq``, halved until the
     error falls.
     """
+    task = task or TaskConfig(num_drones=1)
+    if target is None:
+        target = crazyflie_response(commands, task, physics, controller, perturbation)
     theta = _to_theta(start or PointMassParams())
 
     def residual(th: np.ndarray) -> np.ndarray:
@@ -172,3 +197,48 @@ def fit_point_mass(
         if not improved or np.abs(step * delta).max() < 1e-4:
             break
     return PointMassFit(_from_theta(theta), float(np.sqrt(np.mean(r * r))), done)
+
+
+TRACKER_VARIANTS: dict[str, tuple[Controller, Perturbation]] = {
+    "pid": ("pid", Perturbation()),
+    "firmware": ("firmware", Perturbation()),
+    "firmware, gain 0.7": ("firmware", Perturbation(gain_scale=0.7)),
+    "firmware, gain 1.3": ("firmware", Perturbation(gain_scale=1.3)),
+    "firmware, mass 1.15": ("firmware", Perturbation(mass_scale=1.15)),
+}
+"""The trackers :func:`identify_trackers` fits by default: name -> (controller, perturbation)."""
+
+
+def identify_trackers(
+    variants: Mapping[str, tuple[Controller, Perturbation]] | None = None,
+    commands: np.ndarray | None = None,
+    task: TaskConfig | None = None,
+    iterations: int = 15,
+    start: PointMassParams | None = None,
+) -> dict[str, PointMassFit]:
+    """Fit the point mass to each tracker variant: name -> :class:`PointMassFit` (params and RMS error).
+
+    Args:
+        variants: name -> ``(controller, perturbation)``; default :data:`TRACKER_VARIANTS`.
+        commands: the go-and-brake commands ``(K, T, 3)`` m/s; default :func:`fit_commands`.
+        task: default one drone at the default policy rate.
+        iterations: Gauss-Newton iterations per fit.
+        start: first guess (default: the point-mass defaults, the ``"pid"`` fit).
+    """
+    variants = TRACKER_VARIANTS if variants is None else variants
+    commands = fit_commands() if commands is None else commands
+    task = task or TaskConfig(num_drones=1)
+    return {
+        name: fit_point_mass(commands, None, task, start, iterations, controller=controller, perturbation=perturbation)
+        for name, (controller, perturbation) in variants.items()
+    }
+
+
+def fits_table(fits: Mapping[str, PointMassFit]) -> str:
+    """A Markdown table of :func:`identify_trackers`' result: one row per variant, the :data:`FITTED` values and RMS."""
+    header = ["tracker", *FITTED, "RMS (m/s)"]
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for name, fit in fits.items():
+        values = [f"{getattr(fit.params, field):.4g}" for field in FITTED]
+        lines.append(f"| {name} | " + " | ".join(values) + f" | {fit.rms_error:.3f} |")
+    return "\n".join(lines)

@@ -3,8 +3,9 @@
 Two typed, frozen dataclasses hold every constant of the PyBullet back end:
 
 * :class:`CF2XParams`: the quadrotor itself (mass, inertia, rotor layout, motor
-  coefficients, aerodynamic coefficients). Defaults are the published figures collected in
-  ``shared/notes/reference_facts.md``; the URDF ``marlander_lite/assets/cf2x.urdf`` is written
+  coefficients, aerodynamic coefficients). Defaults are the published CF2X figures of
+  gym-pybullet-drones (Panerati et al. 2021) and the Crazyflie 2.1 data sheet, each listed with its
+  source in ``docs/references.md``; the URDF ``marlander_lite/assets/cf2x.urdf`` is written
   from the same numbers (a test checks that the two agree).
 * :class:`PhysicsConfig`: which effects are simulated and at which rates.
 
@@ -43,6 +44,10 @@ class CF2XParams:
     ``T_i = k_f w_i^2`` along body z and a reaction torque ``s_i k_m w_i^2`` about body z, with
     ``s_i = yaw_signs[i]``. The firmware commands a PWM value per motor; ``w = pwm_to_rpm_scale
     pwm + pwm_to_rpm_offset`` within ``[pwm_min, pwm_max]``.
+
+    Source: gym-pybullet-drones' CF2X model and DSL PID (Panerati et al. 2021) for the mass, inertia,
+    arm, k_f, k_m, motor map and the ground-effect, drag and downwash coefficients; the Bitcraze
+    Crazyflie 2.1 data sheet for the take-off weight (docs/references.md).
     """
 
     mass: float = 0.027

@@ -95,7 +95,8 @@ def downwash_push(dz: float, horizontal_sq: float, thrust_above: float, params: 
         F = -min(c1 (R / (4 dz))^2, T_above) * exp(-d^2 / (2 w^2)) * min(1, dz / h_b),
         w = c2 dz + r_s
 
-    with the published ``(c1, c2, c3) = (2267.18, 0.16, -0.11)`` and ``T_above`` the upper
+    with the published ``(c1, c2, c3) = (2267.18, 0.16, -0.11)`` (Source: gym-pybullet-drones,
+    Panerati et al. 2021; docs/references.md) and ``T_above`` the upper
     drone's thrust. Three choices, ours, keep the model bounded and continuous:
 
     * ``min(., T_above)``: the wake carries the momentum of the thrust that made it and cannot
@@ -117,3 +118,30 @@ def downwash_push(dz: float, horizontal_sq: float, thrust_above: float, params: 
     width = c2 * dz + params.arm + params.prop_radius
     onset = min(1.0, dz / params.collision_height)
     return -peak * math.exp(-horizontal_sq / (2.0 * width * width)) * onset
+
+
+class MotorLag:
+    """First-order lag of the rotor speeds behind their command, over ticks of ``period`` s.
+
+    With ``w(t) = c + (w0 - c) e^(-t / tau)`` the thrust ``k_f w^2`` averaged over the tick
+    ``T`` is ``k_f (c^2 + 2 c (w0 - c) m1 + (w0 - c)^2 m2)``, ``m1 = tau / T (1 - e^(-T / tau))``,
+    ``m2 = tau / (2 T) (1 - e^(-2 T / tau))``. The effective speed is the square root of that
+    mean square, so the force held over the tick equals the lagging motors' mean force exactly.
+    ``tau = 0`` means no lag (:attr:`active` is False).
+    """
+
+    def __init__(self, tau: float, period: float) -> None:
+        self.decay = math.exp(-period / tau) if tau > 0 else 0.0
+        self.m1 = tau / period * (1.0 - self.decay) if tau > 0 else 0.0
+        self.m2 = tau / (2.0 * period) * (1.0 - self.decay**2) if tau > 0 else 0.0
+        self.active = self.decay > 0.0
+
+    def step(self, command: Sequence[float], rpm: Sequence[float]) -> tuple[list[float], list[float]]:
+        """One tick from rotor speeds ``rpm`` towards ``command`` (RPM): ``(effective, at the tick's end)``."""
+        decay, m1, m2 = self.decay, self.m1, self.m2
+        effective, now = [], []
+        for c, w0 in zip(command, rpm, strict=True):
+            gap = w0 - c
+            effective.append(math.sqrt(max(c * c + 2.0 * c * gap * m1 + gap * gap * m2, 0.0)))
+            now.append(c + gap * decay)
+        return effective, now

@@ -32,19 +32,35 @@ Tracking offset: both PID ticks of an action aim at the same target ``p + u dt``
 about ``u dt`` ahead of a drone that flies at ``u``; the position term then adds to the velocity
 term, and a constant command settles 6 to 8 % above ``u`` (``K_p / K_d * 0.75 dt``). This is the
 paper's action semantics; a policy trained in closed loop absorbs it.
+
+``controller="firmware"`` swaps the PID for the Crazyflie firmware's own velocity tracker
+(:mod:`marlander_lite.crazyflie.firmware`), which needs its attitude and rate loops at the fast
+rate: the control tick is then one physics step (``physics.control_hz`` is set to ``physics_hz``,
+10 ticks per action at 240 / 24 Hz) and it tracks ``u`` alone. A
+:class:`~marlander_lite.crazyflie.perturb.Perturbation` makes the drone heavier than its tracker
+believes, delays the commands, or scales the tracker's outer gains.
 """
 
 from __future__ import annotations
 
-import math
+from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 import pybullet as p
 
 from marlander_lite import task
 from marlander_lite.crazyflie.control import CascadedPID, PIDGains, rotation_matrix
+from marlander_lite.crazyflie.firmware import FirmwareGains, FirmwareTracker
 from marlander_lite.crazyflie.params import CF2XParams, PhysicsConfig, ratio_to_count
-from marlander_lite.crazyflie.physics import downwash_push, drag_force, ground_effect_gains, motor_wrench
+from marlander_lite.crazyflie.perturb import (
+    Controller,
+    Perturbation,
+    build_perturbation,
+    build_tracker,
+    check_controller,
+)
+from marlander_lite.crazyflie.physics import MotorLag, downwash_push, drag_force, ground_effect_gains, motor_wrench
 from marlander_lite.crazyflie.world import World, connect
 from marlander_lite.episodes import SwarmState
 from marlander_lite.platforms import PlatformConfig, PlatformMotion
@@ -71,8 +87,13 @@ class CrazyflieSwarm:
         num_envs: must be 1.
         physics: rates and aerodynamic effects (default: ``PhysicsConfig.preset("aero")``).
         drone: the quadrotor's constants.
-        gains: the cascaded PID's gains.
+        gains: the cascaded PID's gains (``controller="pid"``).
         gui: open a PyBullet window instead of running headless.
+        controller: the velocity tracker, ``"pid"`` (:class:`CascadedPID`, ``physics.control_hz``) or
+            ``"firmware"`` (:class:`~marlander_lite.crazyflie.firmware.FirmwareTracker`, every physics step).
+        perturbation: a :class:`~marlander_lite.crazyflie.perturb.Perturbation` or a mapping of its
+            fields (``{"mass_scale": 1.15}``); ``None`` for none.
+        firmware_gains: the firmware tracker's gains (default: the CF2 firmware's).
     """
 
     def __init__(
@@ -84,7 +105,12 @@ class CrazyflieSwarm:
         drone: CF2XParams | None = None,
         gains: PIDGains | None = None,
         gui: bool = False,
+        controller: Controller = "pid",
+        perturbation: Perturbation | Mapping[str, Any] | None = None,
+        firmware_gains: FirmwareGains | None = None,
     ) -> None:
+        self.controller_kind: Controller = check_controller(controller)
+        self.perturbation = build_perturbation(perturbation)
         if num_envs != 1:
             raise ValueError(
                 f"CrazyflieSwarm simulates one swarm (num_envs=1), got num_envs={num_envs}; "
@@ -95,6 +121,10 @@ class CrazyflieSwarm:
         self.params = drone or CF2XParams()
         self.gains = gains or PIDGains()
         n = self.num_drones = task_config.num_drones
+        tracker = build_tracker(controller, self.perturbation, self.params, self.gains, self.physics, n, firmware_gains)
+        self.physics, self.body_params, self._delay = tracker.physics, tracker.body, tracker.delay
+        self.controller: CascadedPID | FirmwareTracker = tracker.controller
+        """The tracker (``controller_kind`` names it); it believes in ``params``, PyBullet flies ``body_params``."""
         self._ticks_per_action = ratio_to_count(
             self.physics.control_hz, task_config.policy_hz, "control_hz", "policy_hz"
         )
@@ -102,13 +132,9 @@ class CrazyflieSwarm:
         """One PID tick (s); PyBullet runs ``physics.steps_per_tick`` physics steps in it."""
         self.client = connect(gui)
         self._closed = False
-        self.world = World(self.client, n, platform, self.params, self.physics, task_config.arena_half_width)
+        self.world = World(self.client, n, platform, self.body_params, self.physics, task_config.arena_half_width)
         self.motion = PlatformMotion(platform, 1, n, task_config.arena_half_width)
-        self.controller = CascadedPID(self.params, self.gains, n, self.control_dt)
-        tau, period = self.physics.motor_time_constant, self.control_dt
-        self._motor_decay = math.exp(-period / tau) if tau > 0 else 0.0
-        self._motor_m1 = tau / period * (1.0 - self._motor_decay) if tau > 0 else 0.0
-        self._motor_m2 = tau / (2.0 * period) * (1.0 - self._motor_decay**2) if tau > 0 else 0.0
+        self._motor_lag = MotorLag(self.physics.motor_time_constant, self.control_dt)
         self._half_x, self._half_y = platform.geometry.half_extents(n)
         self._rotors = self.params.rotor_positions.tolist()
         self.time = 0.0
@@ -168,7 +194,10 @@ class CrazyflieSwarm:
         commands = u[0].tolist()
         self.contact[:] = task.CONTACT_NONE
         self._touched_now = [False] * self.num_drones
+        sent, delay = (targets, commands), self._delay
         for _ in range(self._ticks_per_action):
+            if delay is not None:  # what reaches the tracker now was sent latency_s ago
+                targets, commands = delay.push(sent)
             self._control_tick(targets, commands)
             self._advance_tick()
             self._read_state()
@@ -246,6 +275,8 @@ class CrazyflieSwarm:
         self._touching = [False] * self.num_drones
         self._touched_now = [False] * self.num_drones
         self.controller.reset()
+        if self._delay is not None:  # nothing in flight: "hold still here" is what arrives first
+            self._delay.fill((pos.tolist(), [[0.0, 0.0, 0.0]] * self.num_drones))
         hover = self.params.hover_rpm
         self.rpm = [[hover] * 4 for _ in range(self.num_drones)]
         self.rpm_command = [[hover] * 4 for _ in range(self.num_drones)]
@@ -266,14 +297,14 @@ class CrazyflieSwarm:
         cfg, params, pid = self.physics, self.params, self.controller
         poses, vels = self._poses, self._vels
         rots = [rotation_matrix(pose[1]) for pose in poses]
-        effective = self.rpm
-        if self._motor_decay > 0.0:
+        effective, lag = self.rpm, self._motor_lag
+        if lag.active:
             effective = [list(rpm) for rpm in self.rpm]
         for i in self._active:
             pos, (vel, ang_vel) = poses[i][0], vels[i]
             self.rpm_command[i] = rpm = list(pid.update(i, pos, rots[i], vel, ang_vel, targets[i], commands[i]))
-            if self._motor_decay > 0.0:
-                effective[i] = self._lagged_motors(i, rpm)
+            if lag.active:  # first-order rotor lag, see MotorLag
+                effective[i], self.rpm[i] = lag.step(rpm, self.rpm[i])
             else:
                 self.rpm[i] = rpm
         if cfg.downwash:
@@ -301,23 +332,6 @@ class CrazyflieSwarm:
             fz_motor, tx, ty, tz = motor_wrench(effective[i], params, gain)
             self._forces[i] = (fx, fy, fz + fz_motor)
             self._torques[i] = (tx, ty, tz)
-
-    def _lagged_motors(self, i: int, command: list[float]) -> list[float]:
-        """First-order motor lag over one tick: update drone ``i``'s rotor speeds, return their effective values.
-
-        With ``w(t) = c + (w0 - c) e^(-t / tau)`` the thrust ``k_f w^2`` averaged over the tick
-        ``T`` is ``k_f (c^2 + 2 c (w0 - c) m1 + (w0 - c)^2 m2)``, ``m1 = tau / T (1 - e^(-T / tau))``,
-        ``m2 = tau / (2 T) (1 - e^(-2 T / tau))``. The effective speed is the square root of that
-        mean square, so the held force equals the lagging motors' mean force exactly.
-        """
-        decay, m1, m2 = self._motor_decay, self._motor_m1, self._motor_m2
-        effective, now = [], []
-        for c, w0 in zip(command, self.rpm[i], strict=True):
-            gap = w0 - c
-            effective.append(math.sqrt(max(c * c + 2.0 * c * gap * m1 + gap * gap * m2, 0.0)))
-            now.append(c + gap * decay)
-        self.rpm[i] = now
-        return effective
 
     def _ground_effect(self, pos: tuple, rot: tuple) -> tuple[float, ...]:
         """Each rotor's thrust gain from its height above the floor, or above the plate when the drone is over it."""

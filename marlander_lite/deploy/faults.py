@@ -15,10 +15,15 @@
 
 A :class:`FaultInjector` is a :class:`marlander_lite.deploy.mission.Mission` hook: it starts
 its fault ``start_s`` seconds after the policy took over and records a ``fault_injected`` event.
+A fault is checked when it is made (finite start >= 0, positive duration, drone index >= 0) and
+against the lab (:meth:`FaultSpec.check`: the drone exists, the start falls within the flight's
+time limit); one still not injected when the flight ends (the drones landed first) makes the
+rehearsal fail (:attr:`marlander_lite.deploy.rehearsal.RehearsalResult.fault_missed`).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal, get_args
 
@@ -53,8 +58,27 @@ class FaultSpec:
     def __post_init__(self) -> None:
         if self.kind not in FAULT_KINDS:
             raise ValueError(f"Unknown fault {self.kind!r}; allowed: {', '.join(FAULT_KINDS)}.")
-        if self.start_s < 0 or (self.duration_s is not None and self.duration_s <= 0):
-            raise ValueError("A fault needs start_s >= 0 and duration_s > 0.")
+        # written so that NaN fails too (every comparison with NaN is False)
+        if not (math.isfinite(self.start_s) and self.start_s >= 0):
+            raise ValueError(f"A fault starts at a finite time >= 0 s after the policy starts, not {self.start_s}.")
+        if self.duration_s is not None and not (math.isfinite(self.duration_s) and self.duration_s > 0):
+            raise ValueError(f"A fault lasts a finite time > 0 s, not {self.duration_s}.")
+        if isinstance(self.drone, bool) or not isinstance(self.drone, int | np.integer) or self.drone < 0:
+            raise ValueError(f"A fault's drone is an index >= 0, not {self.drone!r}.")
+
+    def check(self, num_drones: int, time_limit_s: float | None = None) -> None:
+        """Refuse a fault that cannot happen in a flight of ``num_drones`` drones whose policy may fly at most
+        ``time_limit_s`` seconds (None: unknown)."""
+        if not 0 <= self.drone < num_drones:
+            raise ValueError(
+                f"Fault drone index {self.drone} does not exist; the lab has {num_drones} drones (0 to "
+                f"{num_drones - 1})."
+            )
+        if time_limit_s is not None and self.start_s >= time_limit_s:
+            raise ValueError(
+                f"A fault {self.start_s:g} s after the policy starts would never happen: the flight ends "
+                f"{time_limit_s:g} s after the policy starts at the latest."
+            )
 
     @property
     def duration(self) -> float:
@@ -77,8 +101,7 @@ class FaultInjector:
     """Applies one :class:`FaultSpec` to a simulated lab, as a mission hook ``injector(mission, t)``."""
 
     def __init__(self, spec: FaultSpec, world: SimulatedWorld, source: SimulatedPoseSource) -> None:
-        if spec.drone >= world.n:
-            raise ValueError(f"Fault drone index {spec.drone} does not exist; the lab has {world.n} drones.")
+        spec.check(world.n)
         self.spec, self.world, self.source = spec, world, source
         self.started_at: float | None = None
         """Mission time the fault started (s)."""

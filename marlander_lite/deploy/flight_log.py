@@ -105,10 +105,13 @@ class FlightLogWriter:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.fsync = fsync
-        if self.path.exists() and not overwrite:
-            raise FileExistsError(f"The flight log {self.path} exists already; choose another path.")
-        self._file: IO[str] | None = self.path.open("w", encoding="utf-8")
+        try:  # "x": refused by the OS if the file exists, even if it appeared a moment ago
+            self._file: IO[str] | None = self.path.open("w" if overwrite else "x", encoding="utf-8")
+        except FileExistsError:
+            raise FileExistsError(f"The flight log {self.path} exists already; choose another path.") from None
         self.records = 0
+        self.last_tick: int | None = None
+        """The ``tick`` of the last tick record written (the loop checks it after an interrupt)."""
         self.write({"type": "header", "format": FORMAT, "version": VERSION, **header})
 
     def write(self, record: dict[str, Any]) -> None:
@@ -116,6 +119,8 @@ class FlightLogWriter:
         if self._file is None:
             raise ValueError(f"The flight log {self.path} is closed.")
         self._file.write(json.dumps(record, separators=(",", ":")) + "\n")
+        if record.get("type") == "tick":
+            self.last_tick = record["tick"]
         self._file.flush()
         if self.fsync:
             os.fsync(self._file.fileno())

@@ -1,18 +1,25 @@
 """How a drone comes down: what it touched, the surface under it, when it rests, when to hand over.
 
-Pure functions of a :class:`SwarmEstimate`; :class:`marlander_lite.deploy.mission.Mission` acts on
-their answers. Heights are world z (m); ``landed_height`` is the height of a drone's body origin
-above a surface it rests on (``TaskConfig.landed_height``).
+Pure functions of a :class:`SwarmEstimate` decide; :class:`LandingControl`, the landing half of
+:class:`marlander_lite.deploy.mission.Mission`, acts on their answers (stops motors, hands drones
+over to the high-level commander, lands them, ends their landings). Heights are world z (m);
+``landed_height`` is the height of a drone's body origin above a surface it rests on
+(``TaskConfig.landed_height``).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from marlander_lite.deploy.config import LimitsConfig
 from marlander_lite.deploy.estimation import SwarmEstimate
+
+if TYPE_CHECKING:
+    from marlander_lite.deploy.config import LabConfig
+    from marlander_lite.task import TaskConfig
 
 SURFACE_RADIUS = 0.35
 """A drone within this horizontal distance of a pad (m) is over the plate: it lands at the pads' height."""
@@ -22,6 +29,8 @@ HANDOVER_MAX_REL_SPEED = 0.25
 """A drone lingers above its pad when slower than this relative to it (m/s)."""
 HANDOVER_DESCENT_SPEED = 0.1
 """Descent speed of a hand-over landing (m/s)."""
+FLYING: tuple[str, ...] = ("takeoff", "policy", "hover", "landing")
+"""Phases in which a drone's motors run."""
 REST_HEIGHT = 0.05
 """A landing drone rests when it is at most this far above its resting height (m) ..."""
 REST_SPEED = 0.15
@@ -98,3 +107,128 @@ def rests(
         return False
     low = est.pos[i, 2] - surface <= landed_height + REST_HEIGHT
     return bool(low and np.linalg.norm(est.vel[i] - surface_vel) < REST_SPEED)
+
+
+class LandingControl:
+    """The landing half of :class:`marlander_lite.deploy.mission.Mission` (a mixin): touchdowns, hand-overs,
+    high-level landings and their end, the best-effort landing after an error. It uses the mission's
+    link, phases, estimates and events; the functions above decide, these methods act."""
+
+    lab: LabConfig
+    link: Any
+    clock: Any
+    task: TaskConfig
+    names: list[str]
+    n: int
+    t: float
+    phase: list[str]
+    mode: str
+    policy_start: float | None
+    pad_radius: np.ndarray
+    on_pad: np.ndarray
+    landing_error: np.ndarray
+    landing_time: np.ndarray
+    _cmd: list[dict[str, Any]]
+    _landing: dict[int, tuple[float, float, float]]
+    _near_since: np.ndarray
+    _handover: np.ndarray
+    _last_est: SwarmEstimate | None
+
+    def event(self, kind: Any, message: str, drone: int | None = None) -> None:  # Mission.event
+        raise NotImplementedError
+
+    def _touchdowns(self, est: SwarmEstimate, flying: np.ndarray) -> None:
+        """Stop the motors of drones that touched something; hand lingering ones over to the planner."""
+        fresh = flying & ~est.invalid & (est.age <= self.lab.safety.stale_hover_s)
+        floor = self.lab.geofence.z[0]
+        c = contacts(est, fresh, self.pad_radius, self.lab.limits, self.task.landed_height, floor)
+        for i in np.flatnonzero(c.any):
+            self.link.stop_motors(i)
+            self.phase[i], self._cmd[i] = "down", {"kind": "stop"}
+            if c.landed[i]:
+                self._landed(i, c.horizontal[i], "touched its pad")
+            elif c.hard[i]:
+                message = f"{self.names[i]} hit its pad at {c.rel_speed[i]:.2f} m/s (a crash in training): motors off"
+                self.event("hard_touchdown", message, i)
+            else:
+                message = f"{self.names[i]} touched the floor or plate off its pad (a crash in training): motors off"
+                self.event("off_pad_contact", message, i)
+        near = lingering(est, fresh & ~c.any, c, self.pad_radius, self.lab.limits)
+        near &= self.lab.limits.handover_height > 0
+        self._near_since[~near] = np.nan
+        self._near_since[near & np.isnan(self._near_since)] = self.t
+        for i in np.flatnonzero(near & (self.t - self._near_since >= self.lab.limits.handover_dwell_s)):
+            duration = max(0.5, (c.rel[i, 2] + self.task.landed_height) / HANDOVER_DESCENT_SPEED)
+            self._land(i, est, duration=duration, surface=float(est.pad_pos[i, 2]))
+            self._handover[i] = True
+            message = f"{self.names[i]} hovers {c.rel[i, 2] * 100:.1f} cm above its pad: high-level landing on it"
+            self.event("handover", message, i)
+
+    def _landed(self, i: int, error: float, how: str) -> None:
+        self.on_pad[i], self.landing_error[i] = True, error
+        self.landing_time[i] = self.t - self.policy_start
+        self.event("touchdown", f"{self.names[i]} {how} {error * 100:.1f} cm from the centre: motors off", i)
+
+    def _landings(self, est: SwarmEstimate) -> None:
+        """Stop the motors of landing drones once they rest (or when their landing overran)."""
+        margin = self.lab.safety.land_timeout_margin_s
+        for i, (t_land, duration, surface) in list(self._landing.items()):
+            if self.phase[i] != "landing":
+                del self._landing[i]
+                continue
+            _, pad = surface_below(est.pos[i], est, self.lab.geofence.z[0])
+            surface_vel = np.zeros(3) if pad is None else est.pad_vel[pad]
+            stale = self.lab.safety.stale_hover_s
+            resting = rests(est, i, surface, surface_vel, self.task.landed_height, stale)
+            elapsed = self.t - t_land
+            if (elapsed >= duration and resting) or elapsed > duration + margin:
+                self.link.stop_motors(i)
+                self.phase[i], self._cmd[i] = "down", {"kind": "stop"}
+                del self._landing[i]
+                error = float(np.hypot(*(est.pos[i, :2] - est.pad_pos[i, :2])))
+                if self._handover[i] and resting and error <= self.pad_radius[i]:
+                    self._landed(i, error, "rests on its pad")
+                elif resting:
+                    self.event("motors_off", f"{self.names[i]} rests: motors off", i)
+                else:
+                    self.event("land_timeout", f"{self.names[i]} landing timed out: motors off", i)
+
+    def _land(self, i: int, est: SwarmEstimate, duration: float | None = None, surface: float | None = None) -> None:
+        """``notify_setpoint_stop`` + high-level land of drone ``i`` onto ``surface`` (default: what is under it)."""
+        if surface is None:
+            surface, _ = surface_below(est.pos[i], est, self.lab.geofence.z[0])
+        if duration is None:
+            z = est.pos[i, 2] if np.isfinite(est.pos[i, 2]) else self.lab.limits.takeoff_height
+            duration = max(1.0, (z - surface) / self.lab.limits.land_speed)
+        self.link.land(i, surface, duration)
+        self.phase[i] = "landing"
+        self._landing[i] = (self.t, duration, surface)
+        self._cmd[i] = {"kind": "land", "height": surface, "duration": duration}
+
+    def _land_all(self, est: SwarmEstimate, message: str | None) -> None:
+        if message:
+            self.event("land", message)
+        for i in range(self.n):
+            if self.phase[i] in ("takeoff", "policy", "hover"):
+                self._land(i, est)
+        self.mode = "landing"
+
+    def _fallback_landing(self) -> None:
+        """After an unexpected error: land every flying drone, wait for it, stop the motors (best effort)."""
+        est, longest = self._last_est, 0.0
+        for i in range(self.n):
+            if self.phase[i] in ("takeoff", "policy", "hover") and est is not None:
+                try:
+                    self._land(i, est)
+                    longest = max(longest, self._landing[i][1])
+                except Exception:  # keep trying the other drones
+                    pass
+        if longest:
+            self.clock.sleep_until(self.clock.now() + longest + 1.0)
+        for i in range(self.n):
+            if self.phase[i] in FLYING:
+                try:
+                    self.link.stop_motors(i)
+                    self.phase[i] = "down"
+                except Exception:  # keep trying the other drones
+                    pass

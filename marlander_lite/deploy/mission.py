@@ -28,10 +28,12 @@ from typing import Any, Literal
 
 import numpy as np
 
-from marlander_lite.deploy import landing
 from marlander_lite.deploy.config import LabConfig
 from marlander_lite.deploy.estimation import EstimatorConfig, SwarmEstimate, SwarmEstimator
 from marlander_lite.deploy.flight_log import FlightLogWriter, jsonable, rounded, tick_record
+from marlander_lite.deploy.interrupts import describe, handle_signals
+from marlander_lite.deploy.landing import FLYING as FLYING  # re-exported: the phases in which motors run
+from marlander_lite.deploy.landing import LandingControl
 from marlander_lite.deploy.pose_sources import Clock, PoseFrame, PoseSource
 from marlander_lite.deploy.results import MissionResult
 from marlander_lite.deploy.runner import InvalidAction, Policy, PolicyRunner
@@ -40,10 +42,9 @@ from marlander_lite.task import OBS_PER_DRONE
 
 Phase = Literal["idle", "takeoff", "policy", "hover", "landing", "down", "lost"]
 Mode = Literal["preflight", "takeoff", "policy", "landing", "done"]
-FLYING: tuple[str, ...] = ("takeoff", "policy", "hover", "landing")
 
 
-class Mission:
+class Mission(LandingControl):
     """One flight of the swarm; see the module docstring.
 
     Args:
@@ -97,7 +98,12 @@ class Mission:
         self.landing_error = np.full(n, np.nan)
         self.landing_time = np.full(n, np.nan)
         self.loop_ms: list[float] = []
-        self._tick_events: list[Event] = []
+        self.interrupted_by: str | None = None
+        """The signal that ended the flight early (``"SIGINT"`` for Ctrl-C, ``"SIGTERM"``, ``"SIGHUP"``), or None."""
+        self._signals = 0
+        self._tick_open: int | None = None  # index of the tick being worked on
+        self._events_logged = 0  # self.events[:_events_logged] are in tick records
+        self._events_marked = 0  # ... and [:_events_marked] in the record being written
         self._cmd: list[dict[str, Any]] = []
         self._landing: dict[int, tuple[float, float, float]] = {}
         self._near_since = np.full(n, np.nan)
@@ -106,9 +112,8 @@ class Mission:
         self._streaming_since = np.full(n, np.inf)  # mission time of each drone's first forwarded pose
         self._action_ok = True
         self._policy_tick0 = 0
-        self._land_request: str | None = None
+        self._land_requests: list[str] = []  # appended from signal handlers and key threads, emptied by ticks
         self._kill_request: str | None = None
-        self._interrupted = False
         self._invalid_bodies: set[str] = set()
         self._lost_seen = np.zeros(n, dtype=bool)
         self._last_est: SwarmEstimate | None = None
@@ -116,7 +121,7 @@ class Mission:
     # ------------------------------------------------------------------ public controls
     def request_land(self, reason: str = "emergency key") -> None:
         """Land every drone at the next tick (thread-safe: a key watcher may call it)."""
-        self._land_request = reason
+        self._land_requests.append(reason)  # a list: two requests in one tick (Ctrl-C and a time limit) both count
 
     def request_kill(self, reason: str = "emergency stop") -> None:
         """Stop every motor at the next tick."""
@@ -124,41 +129,78 @@ class Mission:
 
     def event(self, kind: EventKind, message: str, drone: int | None = None) -> None:
         """Record an event at the current mission time."""
-        e = Event(round(self.t, 6), kind, message, drone)
-        self.events.append(e)
-        self._tick_events.append(e)
+        self.events.append(Event(round(self.t, 6), kind, message, drone))
 
     # ------------------------------------------------------------------ the loop
     def run(self) -> MissionResult:
-        """Fly until every drone is down, lost, or the pre-flight check gives up."""
+        """Fly until every drone is down, lost, or the pre-flight check gives up.
+
+        While it runs (in the main thread), SIGINT, SIGTERM and SIGHUP land every drone at the next
+        tick and a second one stops every motor (:mod:`marlander_lite.deploy.interrupts`); the
+        previous signal handlers are restored when it returns.
+        """
         self._t0 = self.clock.now()
         next_tick = self._t0
-        try:
-            while self.mode != "done":
-                try:
-                    self._tick()
-                    next_tick += self.period
-                    behind = self.clock.now() - next_tick
-                    if behind > self.period:
-                        self.event("loop_overrun", f"the loop fell {behind * 1000:.0f} ms behind; ticks skipped")
-                        next_tick = self.clock.now()
-                    self.clock.sleep_until(next_tick)
-                except KeyboardInterrupt:
-                    if self._interrupted:
-                        self.request_kill("second Ctrl-C")
-                    else:
-                        self._interrupted = True
-                        self.request_land("Ctrl-C")
-        except Exception as error:
-            self.event("error", f"{type(error).__name__}: {error}; landing every drone")
-            self._fallback_landing()
-            raise
-        finally:
-            result = self.result()
-            if self.log is not None:
-                self.log.write({"type": "summary", **jsonable(result.to_dict())})
-                self.log.close()
+        with handle_signals(self._on_signal):
+            try:
+                while self.mode != "done":
+                    try:
+                        self._tick()
+                    except KeyboardInterrupt:  # raised by code the tick called: treated like SIGINT
+                        self._on_signal("SIGINT")
+                        if not self._settle_interrupted_tick():
+                            continue  # cut short before its record was written: redo it under the same index
+                    next_tick = self._pace(next_tick)
+            except Exception as error:
+                self.event("error", f"{type(error).__name__}: {error}; landing every drone")
+                self._fallback_landing()
+                raise
+            finally:
+                result = self.result()
+                if self.log is not None:
+                    self.log.write({"type": "summary", **jsonable(result.to_dict())})
+                    self.log.close()
         return result
+
+    def _pace(self, next_tick: float) -> float:
+        """Sleep until the next tick is due (or note that the loop fell behind); returns when it is due."""
+        next_tick += self.period
+        try:
+            behind = self.clock.now() - next_tick
+            if behind > self.period:
+                self.event("loop_overrun", f"the loop fell {behind * 1000:.0f} ms behind; ticks skipped")
+                next_tick = self.clock.now()
+            self.clock.sleep_until(next_tick)
+        except KeyboardInterrupt:
+            self._on_signal("SIGINT")
+        return next_tick
+
+    def _on_signal(self, name: str) -> None:
+        """Ctrl-C or a signal (``"SIGINT"``, ``"SIGTERM"``, ``"SIGHUP"``): the first lands every drone at the
+        next tick, any later one stops every motor. Runs inside a signal handler: it only sets requests."""
+        self._signals += 1
+        if self.interrupted_by is None:
+            self.interrupted_by = name
+        if self._signals == 1:
+            self.request_land(describe(name))
+        else:
+            self.request_kill(f"second interrupt ({describe(name)})")
+
+    def _settle_interrupted_tick(self) -> bool:
+        """After a ``KeyboardInterrupt`` escaped a tick: whether that tick counts as done.
+
+        A tick is done once its record is in the log (the writer's ``last_tick``), however far its
+        bookkeeping got; then the counters are set as the tick would have set them (assignments,
+        so doing it twice is harmless). A tick cut short before its record keeps its index and its
+        events, and is redone: the log never holds a tick twice, and never skips one.
+        """
+        k, self._tick_open = self._tick_open, None
+        if k is None:
+            return True  # the interrupt came after the tick finished
+        if self.log is None or getattr(self.log, "last_tick", None) == k:
+            self.tick, self._events_logged = k + 1, self._events_marked
+            return True
+        return False
 
     def result(self) -> MissionResult:
         ms = np.array(self.loop_ms) if self.loop_ms else np.zeros(1)
@@ -176,13 +218,15 @@ class Mission:
             overruns=int((ms > self.period * 1000).sum()),
             events=list(self.events),
             log_path=None if self.log is None else str(self.log.path),
+            interrupted_by=self.interrupted_by,
         )
 
     def _tick(self) -> None:
         start = time.perf_counter()
         now = self.clock.now()
+        k = self._tick_open = self.tick
         self.t = now - self._t0
-        self._tick_events, self._cmd = [], [{"kind": "none"} for _ in range(self.n)]
+        self._cmd = [{"kind": "none"} for _ in range(self.n)]
         self.obs = self.action = None
         for hook in self.hooks:
             hook(self, self.t)
@@ -191,9 +235,10 @@ class Mission:
         self._forward_poses()
         self.decide(est)
         compute_ms = (time.perf_counter() - start) * 1000.0
+        self._events_marked = len(self.events)  # this record holds the events since the last record
         if self.log is not None:
             record = tick_record(
-                tick=self.tick,
+                tick=k,
                 t=self.t,
                 mode=self.mode,
                 phase=self.phase,
@@ -203,12 +248,13 @@ class Mission:
                 obs=self.obs,
                 action=self.action,
                 commands=self._cmd,
-                events=[e.to_dict() for e in self._tick_events],
+                events=[e.to_dict() for e in self.events[self._events_logged : self._events_marked]],
                 compute_ms=compute_ms,
             )
             self.log.write(record)
+        self.tick, self._events_logged = k + 1, self._events_marked
         self.loop_ms.append((time.perf_counter() - start) * 1000.0)
-        self.tick += 1
+        self._tick_open = None
 
     def sense(self, frames: list[PoseFrame], now: float) -> SwarmEstimate:
         """Feed the frames to the estimator; log rejected poses once per bad spell."""
@@ -322,83 +368,7 @@ class Mission:
                 self.event("invalid_action", f"{error}: hovering")
             self._action_ok = False
 
-    def _touchdowns(self, est: SwarmEstimate, flying: np.ndarray) -> None:
-        """Stop the motors of drones that touched something; hand lingering ones over to the planner."""
-        fresh = flying & ~est.invalid & (est.age <= self.lab.safety.stale_hover_s)
-        floor = self.lab.geofence.z[0]
-        c = landing.contacts(est, fresh, self.pad_radius, self.lab.limits, self.task.landed_height, floor)
-        for i in np.flatnonzero(c.any):
-            self.link.stop_motors(i)
-            self.phase[i], self._cmd[i] = "down", {"kind": "stop"}
-            if c.landed[i]:
-                self._landed(i, c.horizontal[i], "touched its pad")
-            elif c.hard[i]:
-                message = f"{self.names[i]} hit its pad at {c.rel_speed[i]:.2f} m/s (a crash in training): motors off"
-                self.event("hard_touchdown", message, i)
-            else:
-                message = f"{self.names[i]} touched the floor or plate off its pad (a crash in training): motors off"
-                self.event("off_pad_contact", message, i)
-        near = landing.lingering(est, fresh & ~c.any, c, self.pad_radius, self.lab.limits)
-        near &= self.lab.limits.handover_height > 0
-        self._near_since[~near] = np.nan
-        self._near_since[near & np.isnan(self._near_since)] = self.t
-        for i in np.flatnonzero(near & (self.t - self._near_since >= self.lab.limits.handover_dwell_s)):
-            duration = max(0.5, (c.rel[i, 2] + self.task.landed_height) / landing.HANDOVER_DESCENT_SPEED)
-            self._land(i, est, duration=duration, surface=float(est.pad_pos[i, 2]))
-            self._handover[i] = True
-            message = f"{self.names[i]} hovers {c.rel[i, 2] * 100:.1f} cm above its pad: high-level landing on it"
-            self.event("handover", message, i)
-
-    def _landed(self, i: int, error: float, how: str) -> None:
-        self.on_pad[i], self.landing_error[i] = True, error
-        self.landing_time[i] = self.t - self.policy_start
-        self.event("touchdown", f"{self.names[i]} {how} {error * 100:.1f} cm from the centre: motors off", i)
-
-    def _landings(self, est: SwarmEstimate) -> None:
-        """Stop the motors of landing drones once they rest (or when their landing overran)."""
-        margin = self.lab.safety.land_timeout_margin_s
-        for i, (t_land, duration, surface) in list(self._landing.items()):
-            if self.phase[i] != "landing":
-                del self._landing[i]
-                continue
-            _, pad = landing.surface_below(est.pos[i], est, self.lab.geofence.z[0])
-            surface_vel = np.zeros(3) if pad is None else est.pad_vel[pad]
-            stale = self.lab.safety.stale_hover_s
-            resting = landing.rests(est, i, surface, surface_vel, self.task.landed_height, stale)
-            elapsed = self.t - t_land
-            if (elapsed >= duration and resting) or elapsed > duration + margin:
-                self.link.stop_motors(i)
-                self.phase[i], self._cmd[i] = "down", {"kind": "stop"}
-                del self._landing[i]
-                error = float(np.hypot(*(est.pos[i, :2] - est.pad_pos[i, :2])))
-                if self._handover[i] and resting and error <= self.pad_radius[i]:
-                    self._landed(i, error, "rests on its pad")
-                elif resting:
-                    self.event("motors_off", f"{self.names[i]} rests: motors off", i)
-                else:
-                    self.event("land_timeout", f"{self.names[i]} landing timed out: motors off", i)
-
     # ------------------------------------------------------------------ landing and requests
-    def _land(self, i: int, est: SwarmEstimate, duration: float | None = None, surface: float | None = None) -> None:
-        """``notify_setpoint_stop`` + high-level land of drone ``i`` onto ``surface`` (default: what is under it)."""
-        if surface is None:
-            surface, _ = landing.surface_below(est.pos[i], est, self.lab.geofence.z[0])
-        if duration is None:
-            z = est.pos[i, 2] if np.isfinite(est.pos[i, 2]) else self.lab.limits.takeoff_height
-            duration = max(1.0, (z - surface) / self.lab.limits.land_speed)
-        self.link.land(i, surface, duration)
-        self.phase[i] = "landing"
-        self._landing[i] = (self.t, duration, surface)
-        self._cmd[i] = {"kind": "land", "height": surface, "duration": duration}
-
-    def _land_all(self, est: SwarmEstimate, message: str | None) -> None:
-        if message:
-            self.event("land", message)
-        for i in range(self.n):
-            if self.phase[i] in ("takeoff", "policy", "hover"):
-                self._land(i, est)
-        self.mode = "landing"
-
     def _check_links(self) -> None:
         for i in range(self.n):
             reason = self.link.lost(i)
@@ -418,36 +388,17 @@ class Mission:
                     self.link.stop_motors(i)
                     self.phase[i], self._cmd[i] = "down", {"kind": "stop"}
             self._kill_request, self.mode = None, "done"
-        elif self._land_request:
-            reason, self._land_request = self._land_request, None
-            self.event("interrupt", f"{reason}: landing every drone")
+        elif self._land_requests:
+            reasons = []
+            while self._land_requests:
+                reasons.append(self._land_requests.pop(0))
+            self.event("interrupt", f"{' and '.join(reasons)}: landing every drone")
             if self.mode == "preflight":
                 self.mode = "done"
             else:
                 self._land_all(est, None)
 
-    def _fallback_landing(self) -> None:
-        """After an unexpected error: land every flying drone, wait for it, stop the motors (best effort)."""
-        est, longest = self._last_est, 0.0
-        for i in range(self.n):
-            if self.phase[i] in ("takeoff", "policy", "hover") and est is not None:
-                try:
-                    self._land(i, est)
-                    longest = max(longest, self._landing[i][1])
-                except Exception:  # keep trying the other drones
-                    pass
-        if longest:
-            self.clock.sleep_until(self.clock.now() + longest + 1.0)
-        for i in range(self.n):
-            if self.phase[i] in FLYING:
-                try:
-                    self.link.stop_motors(i)
-                    self.phase[i] = "down"
-                except Exception:  # keep trying the other drones
-                    pass
-
     def _add(self, events: list[Event]) -> None:
         for e in events:
             e.t = round(self.t, 6)
             self.events.append(e)
-            self._tick_events.append(e)

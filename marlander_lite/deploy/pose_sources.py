@@ -63,7 +63,9 @@ class MotionCaptureSource:
     ``motioncapture.connect`` blocks while no server answers (vicon) and holds Python's GIL
     while it does, so a thread cannot time it out: the connection runs in
     ``mocap_worker.py``'s process, a reader thread here collects its frames, and a connection
-    that does not answer within ``timeout_s`` is killed with a :class:`TimeoutError`.
+    that does not answer within ``timeout_s`` is killed with a :class:`TimeoutError`. The child
+    runs in its own session, so that the signals which make the loop land (Ctrl-C, SIGHUP, SIGTERM
+    sent to the process group) do not also stop the poses the landing needs.
     Frame times are ``time.monotonic()`` at arrival; use :class:`RealClock` in the loop.
 
     Args:
@@ -86,6 +88,10 @@ class MotionCaptureSource:
             stdout=subprocess.PIPE,
             stderr=subprocess.DEVNULL,
             text=True,
+            # Its own session: Ctrl-C, a closed terminal or SSH session (SIGHUP) and `timeout`'s SIGTERM reach
+            # the whole foreground process group; the flight needs poses while it lands after one of those.
+            # It ends when close() kills it, or on a broken pipe when this process is gone.
+            start_new_session=True,
         )
         self._reader = threading.Thread(target=self._read_worker, name=f"mocap-{kind}", daemon=True)
         self._reader.start()

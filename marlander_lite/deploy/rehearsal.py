@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import datetime
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -47,15 +48,33 @@ class RehearsalResult:
     inside_fence: np.ndarray
     """Each drone inside the hard geofence ``(N,)``."""
     riding: np.ndarray
-    """Each drone resting with its motors off on its own pad (it moves with a moving platform) ``(N,)``."""
+    """Each drone resting with its motors off on the plate, on its pad or next to it (it moves with a moving
+    platform) ``(N,)``."""
     min_separation: float
     """Smallest distance between two drones during the flight (m)."""
+    fence_excess: np.ndarray
+    """How far each drone went outside the hard geofence at any physics step ``(N,)`` m; 0: never left it."""
     firmware_events: list[tuple[str, float, str, str]] = field(default_factory=list)
     """(drone, time, kind, message) from the virtual firmwares."""
+    fault_time: float | None = None
+    """Mission time the fault was injected (s); None: no fault, or it never happened."""
+
+    @property
+    def fault_missed(self) -> bool:
+        """A fault was asked for but never injected (the flight ended first): nothing was rehearsed."""
+        return self.fault is not None and self.fault_time is None
+
+    @property
+    def passed(self) -> bool:
+        """What ``marlander deploy --sim`` exits 0 on: safe, and every drone on its pad (no fault) or the
+        fault injected (with a fault), and not cut short by a signal."""
+        if not self.safe or self.mission.interrupted_by is not None:
+            return False
+        return not self.fault_missed if self.fault is not None else self.mission.success
 
     @property
     def at_rest(self) -> np.ndarray:
-        """Motors off and still, or riding its pad ``(N,)``: down on a surface."""
+        """Motors off and still, or riding the plate ``(N,)``: down on a surface."""
         return ~self.motors_on & ((self.final_speeds < 0.05) | self.riding)
 
     @property
@@ -76,6 +95,8 @@ class RehearsalResult:
             f"max {m.loop_ms_max:.2f} ms over {m.ticks} ticks ({m.overruns} over the period)",
         ]
         lines += [f"  {e.t:7.2f} s  {e.kind:16s} {e.message}" for e in m.events]
+        if self.fault_missed:
+            lines.append(f"  fault {self.fault} NEVER INJECTED: the flight ended before it was due; nothing rehearsed")
         after = [(t, d, msg) for d, t, kind, msg in self.firmware_events if kind == "watchdog" and t > m.duration_s]
         lines += [f"  {t:7.2f} s  {'firmware':16s} {d} firmware: {msg} (after the loop ended)" for t, d, msg in after]
         return "\n".join(lines)
@@ -106,6 +127,9 @@ def rehearse(
     seed: int | None = None,
     log_path: str | Path | None = None,
     settle_s: float = 3.0,
+    overwrite_log: bool = False,
+    controller: str | None = None,
+    hooks: Sequence[Callable[[Mission, float], None]] = (),
 ) -> RehearsalResult:
     """Fly the lab's mission in simulation and report how it ended.
 
@@ -117,13 +141,22 @@ def rehearse(
         seed: overrides ``lab.simulation.seed``.
         log_path: where to write the flight log (None: no log).
         settle_s: simulated seconds to run after the mission with no commands.
+        overwrite_log: replace an existing file at ``log_path`` (otherwise it is refused).
+        controller: the PyBullet drones' controller (see :func:`make_simulator`); None: its default.
+        hooks: more mission hooks, called after the rehearsal's own at the start of every tick.
+
+    Raises:
+        ValueError: a fault that cannot happen in this lab (:meth:`FaultSpec.check`).
+        FileExistsError: ``log_path`` exists and ``overwrite_log`` is False.
     """
     if isinstance(policy, str | Path):
         policy = load_lab_policy(policy, lab)
     sim_cfg = lab.simulation
     seed = sim_cfg.seed if seed is None else seed
     kind = simulator or sim_cfg.simulator
-    world = SimulatedWorld(lab, make_simulator(lab, kind), seed=seed)
+    if fault is not None:
+        fault.check(lab.num_drones, fault_time_limit(lab))
+    world = SimulatedWorld(lab, make_simulator(lab, kind, controller=controller), seed=seed)
     source = SimulatedPoseSource(
         world,
         pos_noise_std=sim_cfg.pos_noise_std,
@@ -133,19 +166,21 @@ def rehearse(
         occlusion_rate=sim_cfg.occlusion_rate,
         seed=seed,
     )
-    hooks: list[Any] = [_FirmwareEvents(world), _TimeLimit(sim_cfg.max_time_s)]
-    if fault is not None:
-        hooks.append(FaultInjector(fault, world, source))
-    log = None
-    if log_path is not None:
-        header = flight_header(
-            lab, policy, source="simulation", simulator=kind, seed=seed, fault=None if fault is None else fault.kind
-        )
-        log = FlightLogWriter(log_path, header, overwrite=True)
+    all_hooks: list[Any] = [_FirmwareEvents(world), _TimeLimit(sim_cfg.max_time_s)]
+    injector = None if fault is None else FaultInjector(fault, world, source)
+    if injector is not None:
+        all_hooks.append(injector)
+    all_hooks += hooks
     link = CrazyflieLink([d.uri for d in lab.drones], lab.crazyflie, factory=world.factory)
     try:
+        log = None
+        if log_path is not None:
+            header = flight_header(
+                lab, policy, source="simulation", simulator=kind, seed=seed, fault=None if fault is None else fault.kind
+            )
+            log = FlightLogWriter(log_path, header, overwrite=overwrite_log)
         link.open()
-        result = Mission(lab, policy, source, link, clock=world, log=log, hooks=hooks).run()
+        result = Mission(lab, policy, source, link, clock=world, log=log, hooks=all_hooks).run()
         world.sleep_until(world.time + settle_s)
     finally:
         link.close()
@@ -162,8 +197,16 @@ def rehearse(
         inside_fence=np.array([lab.geofence.contains(p) for p in pos]),
         riding=world.pad_landed.copy(),
         min_separation=world.min_separation,
+        fence_excess=world.fence_excess.copy(),
         firmware_events=[(fw.name, t, k, m) for fw in world.firmwares.values() for t, k, m in fw.events],
+        fault_time=None if injector is None else injector.started_at,
     )
+
+
+def fault_time_limit(lab: LabConfig) -> float:
+    """The latest a fault can start after the policy took over (s): the policy flies at most
+    ``limits.max_flight_s``, and the simulated lab runs at most ``simulation.max_time_s`` in all."""
+    return min(lab.limits.max_flight_s, lab.simulation.max_time_s)
 
 
 class _FirmwareEvents:

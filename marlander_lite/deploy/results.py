@@ -31,6 +31,8 @@ class MissionResult:
     """Ticks whose work took longer than the loop period."""
     events: list[Event] = field(default_factory=list)
     log_path: str | None = None
+    interrupted_by: str | None = None
+    """The signal that ended the flight early: ``"SIGINT"`` (Ctrl-C), ``"SIGTERM"``, ``"SIGHUP"``; None otherwise."""
 
     @property
     def success(self) -> bool:

@@ -6,8 +6,9 @@ The rules (thresholds in :class:`marlander_lite.deploy.config.SafetyConfig`):
 before take-off                :meth:`SafetyMonitor.arming_problems`: every drone and pad seen and
                                fresh, valid, inside the soft fence, still, level, apart; links up;
                                the take-off height 0.3 m above the pads.
-geofence                       a flying drone outside the soft box -> every drone hovers for
-                               ``geofence_hover_s``, then lands. Not resumed.
+geofence                       a flying drone outside the soft box, or one whose stopping
+                               distance (:func:`stopping_distance`) reaches the hard box -> every
+                               drone hovers for ``geofence_hover_s``, then lands. Not resumed.
 stale or missing body          any drone or pad body older than ``stale_hover_s`` -> hover (the
                                policy is centralised: one bad input spoils every command);
                                older than ``stale_land_s`` -> land. Fresh again before: resume.
@@ -20,17 +21,120 @@ Ctrl-C, emergency key          every drone lands; a second Ctrl-C stops every mo
 =============================  ===================================================================
 
 Every decision comes with :class:`Event` s, which the loop logs.
+
+**Braking.** A drone told to hover does not stop where it is. The command reaches it a latency
+``t_lat`` later (mocap + radio, :data:`LINK_LATENCY_S`, plus one loop period); the firmware's
+velocity tracker then needs :data:`TRACKER_RESPONSE_DELAY_S` before the drone decelerates, and
+brakes at :data:`FIRMWARE_BRAKE_DECELERATION`, well below the ``g tan(20 deg)`` = 3.57 m/s^2 its
+tilt limit would allow. From speed ``v`` it travels
+
+    d(v) = SAFETY_FACTOR * (v (t_lat + t_resp) + v^2 / (2 a_fw))
+
+before it stands still (:func:`stopping_distance`). Told to fly at ``limits.max_speed``, a drone
+reaches :data:`SPEED_OVERSHOOT` times that speed, so the config loader demands
+``geofence.margin >= d(SPEED_OVERSHOOT * limits.max_speed)`` (:func:`required_margin`). In flight
+:class:`SafetyMonitor` brakes as soon as a drone's stopping point ``pos + d(|v|) v/|v|``, at its
+*measured* speed (which already contains any overshoot), leaves the hard box. The three
+constants were measured in the PyBullet Crazyflie with the firmware velocity tracker (see
+``docs/lab_guide.md``, *Config validation and the geofence margin*).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
-from marlander_lite.deploy.config import LabConfig
-from marlander_lite.deploy.estimation import SwarmEstimate
+if TYPE_CHECKING:  # config imports this module's braking model: no import cycle at run time
+    from marlander_lite.deploy.config import LabConfig
+    from marlander_lite.deploy.estimation import SwarmEstimate
+
+GRAVITY = 9.81
+"""m/s^2."""
+MAX_TILT_DEG = 20.0
+"""Tilt limit of the stock Crazyflie firmware's velocity controller (degrees, ``rpLimit``)."""
+TILT_LIMIT_DECELERATION = GRAVITY * math.tan(math.radians(MAX_TILT_DEG))
+"""``g tan(20 deg)`` = 3.57 m/s^2: the deceleration the tilt limit would allow in level flight. The firmware
+does not reach it (:data:`FIRMWARE_BRAKE_DECELERATION`); kept for reference, not used by the margin."""
+SPEED_OVERSHOOT = 1.10
+"""How much faster than a commanded speed the drone flies at worst (ratio). The firmware's velocity PID
+(kp 25 deg per m/s, ki 1) overshoots a step: measured in the PyBullet Crazyflie with the firmware tracker,
+the speed peaks at 1.089 x the command at 0.5-1 m/s (1.095 on a diagonal), 1.07 at 1.5 m/s, 1.05 at 2 m/s,
+1.03 at 3 m/s, about 0.5 s after the step."""
+FIRMWARE_BRAKE_DECELERATION = 2.4
+"""Deceleration the firmware's velocity tracker achieves when its setpoint drops to 0 (m/s^2). Its kp of
+25 deg per m/s saturates the 20 deg tilt only above 0.8 m/s of error, and the attitude loop needs time to
+tilt back, so the drone brakes at far less than ``g tan(20 deg)``. Measured in the PyBullet Crazyflie (firmware
+tracker, 240 Hz) by commanding ``v`` then 0 and fitting ``v(t)`` with a delay and a constant deceleration:
+1.4 m/s^2 from 0.55 m/s, 2.6 from 1.1 m/s, 3.1 from 1.6 m/s, 3.4 from 2.1 m/s, 3.8 from 3.1 m/s. 2.4 m/s^2
+is the largest value for which ``d(v)`` (without the safety factor, with :data:`TRACKER_RESPONSE_DELAY_S`)
+covers every measured stop, 0.5-3 m/s commanded, stopped at any moment of the acceleration, within 1 %."""
+TRACKER_RESPONSE_DELAY_S = 0.15
+"""Time from a 0 setpoint reaching the firmware to the drone slowing down (s): the 100 Hz velocity loop, the
+attitude loop tilting the drone back, and the velocity integrator unwinding. Fitted 0.06-0.11 s from a steady
+speed; stopped in mid-acceleration, when the drone is still tilted forwards, it travels as if 0.15 s late."""
+BRAKE_DECELERATION = FIRMWARE_BRAKE_DECELERATION
+"""The deceleration the margin assumes (m/s^2): :data:`FIRMWARE_BRAKE_DECELERATION`."""
+LINK_LATENCY_S = 0.030
+"""Motion capture plus radio latency before a command acts (s); one loop period is added to it."""
+SAFETY_FACTOR = 1.25
+"""The stopping distance is stretched by this factor (estimation noise, wind, a weaker battery)."""
+TAKEOFF_CLEARANCE = 0.3
+"""The take-off height must be at least this far above the pads (and so above the floor) (m)."""
+
+
+def brake_latency(loop_hz: float) -> float:
+    """Time from a pose to a command acting on the drone: ``LINK_LATENCY_S`` plus one loop period (s)."""
+    return LINK_LATENCY_S + 1.0 / loop_hz
+
+
+def coast_time(loop_hz: float) -> float:
+    """Time a drone keeps its speed after the pose that should stop it: ``brake_latency`` plus the tracker's
+    :data:`TRACKER_RESPONSE_DELAY_S` (s)."""
+    return brake_latency(loop_hz) + TRACKER_RESPONSE_DELAY_S
+
+
+def stopping_distance(speed: Any, loop_hz: float) -> Any:
+    """``SAFETY_FACTOR (v (t_lat + t_resp) + v^2 / (2 a_fw))``: how far a drone flying at ``speed`` (m/s, its
+    actual speed, overshoot included) goes before it stops (m)."""
+    v = np.abs(speed)
+    return SAFETY_FACTOR * (v * coast_time(loop_hz) + v**2 / (2.0 * BRAKE_DECELERATION))
+
+
+def required_margin(max_speed: float, loop_hz: float) -> float:
+    """The gap between soft and hard fence that a drone commanded at the lab speed limit needs to stop in (m):
+    the stopping distance from ``SPEED_OVERSHOOT * max_speed``."""
+    return float(stopping_distance(SPEED_OVERSHOOT * max_speed, loop_hz))
+
+
+def braking_margin_problem(max_speed: float, margin: float, loop_hz: float) -> str | None:
+    """Why a soft-fence ``margin`` (m) is too narrow to stop in from ``max_speed`` (m/s), or None if it is not.
+
+    The fixes it names are rounded so that they pass: the margin up, the speed down (to the centimetre).
+    """
+    needed = required_margin(max_speed, loop_hz)
+    if margin >= needed - 1e-9:
+        return None
+    wider = math.ceil(needed * 100 - 1e-6) / 100
+    slower = math.floor(fastest_speed_for(margin, loop_hz) * 100 + 1e-6) / 100
+    return (
+        f"geofence.margin {margin} m is too narrow to brake in at limits.max_speed {max_speed} m/s: a Crazyflie "
+        f"needs {wider:.2f} m ({SAFETY_FACTOR} x (v t + v^2 / (2 a)) at v = {SPEED_OVERSHOOT} x max_speed "
+        f"(the firmware overshoots), t = {coast_time(loop_hz) * 1e3:.0f} ms of latency and tracker delay, "
+        f"a = {BRAKE_DECELERATION:.1f} m/s^2 the firmware brakes at). Either lower limits.max_speed to "
+        f"{slower:.2f} m/s or less, or widen the gap: geofence.margin >= {wider:.2f} m "
+        "(moving the hard fence out by as much)."
+    )
+
+
+def fastest_speed_for(margin: float, loop_hz: float) -> float:
+    """The highest ``limits.max_speed`` (m/s) whose stopping distance fits ``margin`` (inverse of
+    :func:`required_margin`)."""
+    a, t = BRAKE_DECELERATION, coast_time(loop_hz)
+    return a * (math.sqrt(t * t + 2.0 * margin / (SAFETY_FACTOR * a)) - t) / SPEED_OVERSHOOT
+
 
 EventKind = Literal[
     "armed",
@@ -104,6 +208,9 @@ class SafetyMonitor:
         self.pad_bodies = [p.body for p in lab.drone_pads()]
         low, high = lab.geofence.bounds(soft=True)
         self._low, self._high = np.array(low), np.array(high)
+        hard_low, hard_high = lab.geofence.bounds(soft=False)
+        self._hard_low = np.array([hard_low[0], hard_low[1], -np.inf])  # descending to the floor is landing
+        self._hard_high = np.array(hard_high)
         self.geofence_at: float | None = None
         """When the geofence was breached (the flight is then aborted)."""
         self._degraded = False
@@ -113,6 +220,18 @@ class SafetyMonitor:
     def inside_soft_fence(self, pos: np.ndarray) -> np.ndarray:
         """Per drone ``(N,)``: inside the soft box (NaN positions count as inside; staleness handles them)."""
         outside = (pos < self._low) | (pos > self._high)
+        return ~outside.any(axis=-1)
+
+    def stopping_points(self, pos: np.ndarray, vel: np.ndarray) -> np.ndarray:
+        """Where each drone ``(N, 3)`` would stand still if told to hover now (its braking path is straight)."""
+        speed = np.linalg.norm(vel, axis=-1, keepdims=True)
+        distance = stopping_distance(speed, self.lab.rates.loop_hz)
+        return pos + np.divide(vel * distance, speed, out=np.zeros_like(vel), where=speed > 1e-9)
+
+    def stops_inside_hard_fence(self, pos: np.ndarray, vel: np.ndarray) -> np.ndarray:
+        """Per drone ``(N,)``: its stopping point is inside the hard box (the floor excepted; NaN counts as inside)."""
+        stop = self.stopping_points(pos, vel)
+        outside = (stop < self._hard_low) | (stop > self._hard_high)
         return ~outside.any(axis=-1)
 
     def arming_problems(self, est: SwarmEstimate, lost: list[str | None]) -> list[str]:
@@ -145,8 +264,10 @@ class SafetyMonitor:
                 problems.append(f"{name} is at z={pos[2]:.2f} m, not below the take-off height")
         pad_top = np.nanmax(est.pad_pos[:, 2]) if np.isfinite(est.pad_pos[:, 2]).any() else np.nan
         height = self.lab.limits.takeoff_height
-        if pad_top + 0.3 > height:
-            problems.append(f"the take-off height {height} m is not 0.3 m above the pads (z={pad_top:.2f} m)")
+        if pad_top + TAKEOFF_CLEARANCE > height:
+            problems.append(
+                f"the take-off height {height} m is not {TAKEOFF_CLEARANCE} m above the pads (z={pad_top:.2f} m)"
+            )
         for i in range(len(self.names)):
             for j in range(i + 1, len(self.names)):
                 gap = float(np.linalg.norm(est.pos[i] - est.pos[j]))
@@ -160,10 +281,17 @@ class SafetyMonitor:
         if self._landing:
             return Verdict("land", events)
         if self.geofence_at is None:
-            outside = flying & ~self.inside_soft_fence(est.pos)
+            left = flying & ~self.inside_soft_fence(est.pos)
+            overshoots = flying & ~self.stops_inside_hard_fence(est.pos, est.vel)
+            outside = left | overshoots
             for i in np.flatnonzero(outside):
                 pos = np.round(est.pos[i], 2).tolist()
-                events.append(Event(now, "geofence_breach", f"{self.names[i]} at {pos} left the soft fence", int(i)))
+                why = (
+                    "left the soft fence"
+                    if left[i]
+                    else f"at {np.linalg.norm(est.vel[i]):.2f} m/s could not stop inside the hard fence"
+                )
+                events.append(Event(now, "geofence_breach", f"{self.names[i]} at {pos} {why}", int(i)))
             if outside.any():
                 self.geofence_at = now
         if self.geofence_at is not None:

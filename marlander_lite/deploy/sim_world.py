@@ -9,7 +9,10 @@ loop period at a time, so the deployment loop runs unchanged against it.
 
 Each step the firmware of every drone says what its drone does (a velocity to track, or
 motors off); drones whose motors stop fall until they touch something, and a drone resting
-with its motors off on its own pad is fixed to the pad (it rides along on a moving platform).
+with its motors off on the plate (on its pad, or crashed next to it) is fixed to it: it rides
+along on a moving platform, as friction would carry it. The drones start on the floor away from
+everywhere a moving plate goes during the rehearsal. Every physics step checks the true drone
+positions against the hard geofence (:attr:`SimulatedWorld.fence_excess`).
 The simulators can only restart motors with ``place``, which puts every drone of the
 environment at rest: take-offs are therefore expected together (the loop takes off all drones
 in the same tick), and a restart while another drone flies is logged as an event.
@@ -18,7 +21,8 @@ in the same tick), and a restart while another drone flies is logged as an event
 from __future__ import annotations
 
 import importlib
-from typing import Any
+import inspect
+from typing import Any, Literal, get_args
 
 import numpy as np
 
@@ -32,6 +36,15 @@ from marlander_lite.task import TaskConfig
 
 PYBULLET_SIMULATOR = "marlander_lite.crazyflie.simulator:CrazyflieSwarm"
 """Where the PyBullet Crazyflie swarm lives."""
+FLOOR_CONTACT_TOLERANCE = 0.05
+"""A falling drone's centre sinks up to this far below the floor (the fence's lower bound) when it hits it in
+PyBullet after a fall of up to 2.5 m (m): contact penetration, not a drone leaving the fence."""
+PAD_REST_HEIGHT = 0.02
+"""A drone touching something with its centre this close to its resting height on the plate rests on it (m)."""
+Controller = Literal["firmware", "pid"]
+CONTROLLERS: tuple[str, ...] = get_args(Controller)
+DEFAULT_CONTROLLER: Controller = "firmware"
+"""The rehearsal's PyBullet drones fly through the firmware's velocity tracker: what runs on the drone."""
 
 
 class SimulatorUnavailable(RuntimeError):
@@ -54,9 +67,21 @@ def world_platform(lab: LabConfig) -> PlatformConfig:
     return PlatformConfig(kind=sim.platform, speed=sim.platform_speed, geometry=geometry)
 
 
-def make_simulator(lab: LabConfig, kind: str | None = None) -> Any:
-    """The swarm simulator for ``kind`` (``pybullet`` or ``pointmass``; default: the config's)."""
+def make_simulator(lab: LabConfig, kind: str | None = None, controller: Controller | None = None) -> Any:
+    """The swarm simulator for ``kind`` (``pybullet`` or ``pointmass``; default: the config's).
+
+    Args:
+        lab: the lab config.
+        kind: ``pybullet`` or ``pointmass``; default: ``lab.simulation.simulator``.
+        controller: how the PyBullet drones track their velocity setpoints: ``firmware`` (the
+            default: the Crazyflie firmware's velocity tracker, what runs on the drone) or ``pid``
+            (the simulator's own cascaded PID, the one the policies were trained with). The point
+            mass has no controller and ignores it. A PyBullet swarm too old to know the firmware
+            tracker falls back to its PID unless ``firmware`` is asked for explicitly.
+    """
     kind = kind or lab.simulation.simulator
+    if controller is not None and controller not in CONTROLLERS:
+        raise ValueError(f"Unknown controller {controller!r}; allowed: {', '.join(CONTROLLERS)}.")
     task_config, platform = world_task(lab), world_platform(lab)
     if kind == "pointmass":
         from marlander_lite.pointmass.simulator import PointMassSwarm
@@ -71,6 +96,12 @@ def make_simulator(lab: LabConfig, kind: str | None = None) -> Any:
                 f"The PyBullet Crazyflie simulator ({PYBULLET_SIMULATOR}) is not available ({error}); "
                 "rehearse with simulator 'pointmass' instead."
             ) from None
+        if "controller" in inspect.signature(swarm_class).parameters:
+            return swarm_class(task_config, platform, controller=controller or DEFAULT_CONTROLLER)
+        if controller == "firmware":
+            raise SimulatorUnavailable(
+                f"The PyBullet Crazyflie swarm ({PYBULLET_SIMULATOR}) has no firmware controller."
+            )
         return swarm_class(task_config, platform)
     raise ValueError(f"Unknown simulator {kind!r}; allowed: pybullet, pointmass.")
 
@@ -104,10 +135,16 @@ class SimulatedWorld:
         self.events: list[tuple[float, str, str]] = []
         self.motors_on = np.zeros(self.n, dtype=bool)
         self.pad_landed = np.zeros(self.n, dtype=bool)
-        """Drones resting with motors off on their own pads (fixed to them)."""
+        """Drones resting with motors off on the plate, on their pads or next to them (fixed to it: they ride along)."""
         self.min_separation = np.inf
         """Smallest distance between two drone centres so far (m)."""
         self.speeds = np.zeros(self.n)
+        low, high = lab.geofence.bounds()
+        low = np.array(low, dtype=float) - [0.0, 0.0, FLOOR_CONTACT_TOLERANCE]
+        self._fence = (low, np.array(high, dtype=float))
+        self.fence_excess = np.zeros(self.n)
+        """How far each drone has been outside the hard geofence so far (m; 0: it never left it), checked every
+        physics step against the simulator's truth (a drone sinking into the floor on impact is not outside)."""
         """Drone speeds over the last step from their change of position (m/s): simulators need not zero
         the velocity of a drone resting with its motors off."""
         rng = np.random.default_rng(lab.simulation.seed if seed is None else seed)
@@ -140,21 +177,35 @@ class SimulatedWorld:
         return bodies
 
     def _start_positions(self, rng: np.random.Generator) -> np.ndarray:
+        """Drones on the floor 0.6 m apart and 0.8 m from the plate, wherever a moving plate goes during the
+        rehearsal (a UR10 sweeping its plate over a drone would hit it on take-off); if no such places exist,
+        0.8 m from where the plate starts."""
         z = self.sim.task.landed_height
         given = self.lab.simulation.start_positions
         if given is not None:
             return np.array([[x, y, z] for x, y in given])
         low, high = self.lab.geofence.bounds(soft=True)
         plate = self.sim.state().pad_pos[0].mean(axis=0)
-        chosen: list[np.ndarray] = []
-        for _ in range(10_000):
-            xy = rng.uniform(np.array(low[:2]) + 0.2, np.array(high[:2]) - 0.2)
-            if np.linalg.norm(xy - plate[:2]) < 0.8 or any(np.linalg.norm(xy - c[:2]) < 0.6 for c in chosen):
-                continue
-            chosen.append(np.array([xy[0], xy[1], z]))
-            if len(chosen) == self.n:
-                return np.array(chosen)
+        for keep_away in (self._plate_path(plate), plate[None, :2]):
+            chosen: list[np.ndarray] = []
+            for _ in range(10_000):
+                xy = rng.uniform(np.array(low[:2]) + 0.2, np.array(high[:2]) - 0.2)
+                near_plate = np.linalg.norm(keep_away - xy, axis=1).min() < 0.8
+                if near_plate or any(np.linalg.norm(xy - c[:2]) < 0.6 for c in chosen):
+                    continue
+                chosen.append(np.array([xy[0], xy[1], z]))
+                if len(chosen) == self.n:
+                    return np.array(chosen)
         raise ConfigError("Could not place the drones on the floor 0.6 m apart, away from the plate; widen the fence.")
+
+    def _plate_path(self, plate: np.ndarray) -> np.ndarray:
+        """Where the plate centre goes ``(K, 2)`` during the rehearsal (time limit + 20 s) (m)."""
+        motion = getattr(self.sim, "motion", None)
+        if motion is None or not self.sim.platform.is_moving:
+            return plate[None, :2]
+        offset = plate - motion.state(np.zeros(1))[0][0]  # plate centre relative to the motion's reference
+        times = np.linspace(0.0, self.lab.simulation.max_time_s + 20.0, 600)
+        return np.array([motion.state(np.array([t]))[0][0, :2] for t in times]) + offset[:2]
 
     # ------------------------------------------------------------------ the loop's clock
     def now(self) -> float:
@@ -186,12 +237,32 @@ class SimulatedWorld:
         self.time += self.dt
         state = self.sim.state()
         self.speeds = np.linalg.norm(state.pos[0] - before, axis=-1) / self.dt
-        rest = (~self.motors_on) & (state.contact[0] == task.CONTACT_OWN_PAD) & ~self.pad_landed
+        rest = (~self.motors_on) & self._on_plate(state) & ~self.pad_landed
         if rest.any():
             self.sim.land(rest[None])
             self.pad_landed |= rest
         if self.n > 1:
             self.min_separation = min(self.min_separation, float(task.min_separation(state.pos)[0]))
+        low, high = self._fence
+        excess = np.maximum(low - state.pos[0], state.pos[0] - high).max(axis=1)
+        self.fence_excess = np.maximum(self.fence_excess, excess)
+
+    def _on_plate(self, state: Any) -> np.ndarray:
+        """Drones resting on the plate ``(N,)``: the simulator says they touch their own pad, or they touch
+        something while their centre is over the plate and at most ``PAD_REST_HEIGHT`` off the height they
+        rest at on it.
+
+        The second test matters on a moving plate: PyBullet reports a drone touching its pad and the plate
+        around it as touching "something else", and without the friction that would carry it, the plate
+        slides away under a drone resting on it (on its pad, or crashed next to it) and drops it.
+        """
+        contact = state.contact[0]
+        pads = state.pad_pos[0]
+        centre = pads.mean(axis=0)
+        half = np.asarray(self.sim.platform.geometry.half_extents(self.n))
+        over = (np.abs(state.pos[0, :, :2] - centre[:2]) <= half).all(axis=1)
+        low = np.abs(state.pos[0, :, 2] - pads[:, 2] - self.sim.task.landed_height) <= PAD_REST_HEIGHT
+        return (contact == task.CONTACT_OWN_PAD) | ((contact != task.CONTACT_NONE) & over & low)
 
     def _start_motors(self, start: np.ndarray, want_on: np.ndarray) -> None:
         state = self.sim.state()

@@ -89,7 +89,7 @@ class VirtualCrazyflie:
         self._inbox: queue.Queue[CRTPPacket | None] = queue.Queue()
         self._dispatcher: threading.Thread | None = None
         self._send_lock = threading.Lock()
-        self._toc_dir = tempfile.TemporaryDirectory(prefix="marlander-virtual-cf-")  # cflib caches TOCs here
+        self._toc_dir: tempfile.TemporaryDirectory[str] | None = None  # cflib caches TOCs here while a link is open
         self.commander = Commander(self)
         self.high_level_commander = HighLevelCommander(self)
         self.loc = Localization(self)
@@ -106,6 +106,8 @@ class VirtualCrazyflie:
         self._dispatcher = threading.Thread(target=self._dispatch, name=f"virtual-cf-{link_uri}", daemon=True)
         self._dispatcher.start()
         self.link_established.call(link_uri)
+        if self._toc_dir is None:
+            self._toc_dir = tempfile.TemporaryDirectory(prefix="marlander-virtual-cf-", ignore_cleanup_errors=True)
         self.param.refresh_toc(self._param_toc_updated, TocCache(rw_cache=self._toc_dir.name))
 
     def _param_toc_updated(self) -> None:
@@ -135,6 +137,9 @@ class VirtualCrazyflie:
             if self._dispatcher is not threading.current_thread():
                 self._dispatcher.join(timeout=1.0)
             self._dispatcher = None
+        if self._toc_dir is not None:  # removed with the link, not left to the garbage collector
+            self._toc_dir.cleanup()
+            self._toc_dir = None
 
     def is_connected(self) -> bool:
         return self.connected_ts is not None

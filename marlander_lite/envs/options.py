@@ -45,7 +45,8 @@ def build_configs(
         platform: one of ``PLATFORM_KINDS`` or a full :class:`PlatformConfig`.
         platform_speed: tool speed of a moving platform (m/s), or a ``(low, high)`` range drawn per episode.
         task: a :class:`TaskConfig`, or a mapping of fields to override in the default one.
-        sensing: a :class:`SensingConfig`, ``"vicon"`` for the lab's noise and latency, or
+        sensing: a :class:`SensingConfig`, ``"vicon"`` for the lab's noise and latency, ``"noisy"`` for the
+            training aid :meth:`SensingConfig.noisy`, or
             ``None``/``"perfect"`` for none.
     """
     if isinstance(num_drones, bool) or not isinstance(num_drones, int | np.integer) or num_drones < 1:
@@ -72,10 +73,12 @@ def build_configs(
         sensing_config = SensingConfig()
     elif sensing == "vicon":
         sensing_config = SensingConfig.vicon()
+    elif sensing == "noisy":
+        sensing_config = SensingConfig.noisy()
     elif isinstance(sensing, SensingConfig):
         sensing_config = sensing
     else:
-        raise ValueError(f"sensing must be a SensingConfig, 'vicon', 'perfect' or None, got {sensing!r}.")
+        raise ValueError(f"sensing must be a SensingConfig, 'vicon', 'noisy', 'perfect' or None, got {sensing!r}.")
     return task_config, platform_config, sensing_config
 
 

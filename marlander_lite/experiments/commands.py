@@ -5,19 +5,25 @@ Examples::
     marlander reproduce --quick --controllers baseline            # a few trials, < 3 min on 2 cores
     marlander reproduce --simulator pointmass                     # 100 trials per controller and condition
     marlander reproduce --simulator crazyflie --trials paper      # the paper's counts, PyBullet
+    marlander reproduce --update-shipped --simulator pointmass    # full run: replace the shipped results
     marlander reproduce --report-only --simulator pointmass       # rebuild tables/figures/docs from trials.csv
 
-Results go to ``data/results/<simulator>/`` (``<simulator>-quick`` with ``--quick``): ``trials.csv``,
+Results go to ``runs/reproduce/<simulator>[-quick]-<time>/`` or ``--out``: ``trials.csv``,
 ``summary_by_condition.csv``, ``summary_by_group.csv``, ``table_static.md``, ``table_moving.md``,
 ``table_conditions.md``, ``table_per_drone.md``, ``gains_baseline.md``, ``fig7_<controller>.png``,
-``trajectories_<controller>.csv``, ``fig_speed.png`` and ``run.json``. A full (not ``--quick``) run
-then refreshes the include blocks of ``docs/reproduction.md``.
+``trajectories_<controller>.csv``, ``fig_speed.png`` and ``run.json``.
+
+The shipped results (``data/results/``) and ``docs/reproduction.md`` change only with
+``--update-shipped``, which also requires a full run: every condition, at least 100 trials per
+cell and every controller of the shipped run (all five by default). A lock file with the PID
+(``.reproduce.lock``) keeps two runs out of one folder; a lock left by a dead process is taken over.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from dataclasses import replace
@@ -31,6 +37,7 @@ from marlander_lite.experiments.protocol import (
     SENSING_NAMES,
     ProtocolConfig,
     TrialRecord,
+    check_policies,
     condition,
     record_trajectory,
     run_protocol,
@@ -38,9 +45,16 @@ from marlander_lite.experiments.protocol import (
 from marlander_lite.make import SIMULATORS
 
 RESULTS_ROOT = Path("data/results")
+"""The shipped results: written only by a full run with ``--update-shipped``."""
+RUNS_ROOT = Path("runs/reproduce")
+"""Where other runs go by default, one timestamped folder each."""
 DEFAULT_DOC = Path("docs/reproduction.md")
 QUICK_TRIALS = 3
 """Trials per controller and condition with ``--quick``."""
+FULL_TRIALS = 100
+"""Trials per controller and condition of the full protocol (the shipped results)."""
+LOCK_NAME = ".reproduce.lock"
+"""Lock file in the results folder while a run writes there; it holds the writer's PID."""
 
 
 def _choices(allowed: tuple[str, ...], what: str) -> Any:
@@ -84,8 +98,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--controllers",
         type=_choices(CONTROLLERS, "controller(s)"),
-        default=PAPER_CONTROLLERS,
-        help=f"comma-separated, from {', '.join(CONTROLLERS)} (default: the paper's {', '.join(PAPER_CONTROLLERS)})",
+        help=f"comma-separated, from {', '.join(CONTROLLERS)} (default: the paper's {', '.join(PAPER_CONTROLLERS)}; "
+        "with --update-shipped, those of the shipped run)",
     )
     p.add_argument(
         "--conditions",
@@ -102,8 +116,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--marlander-policy", type=Path, help="centralised policy file (default: the shipped one)")
     p.add_argument("--single-agent-policy", type=Path, help="1-drone policy file (default: the shipped one)")
     p.add_argument("--marlander-plus-policy", type=Path, help="policy that observes the platform velocity")
-    p.add_argument("--out", type=Path, help="results folder (default data/results/<simulator>[-quick])")
-    p.add_argument("--doc", type=Path, help="document whose include blocks to refresh (default docs/reproduction.md)")
+    p.add_argument("--out", type=Path, help="results folder (default runs/reproduce/<simulator>[-quick]-<time>)")
+    p.add_argument(
+        "--update-shipped",
+        action="store_true",
+        help="a full run that replaces data/results/<simulator> and refreshes docs/reproduction.md",
+    )
+    p.add_argument("--doc", type=Path, help="document whose include blocks to refresh (default: none)")
     p.add_argument("--no-doc", action="store_true", help="do not touch the document")
     p.add_argument("--report-only", action="store_true", help="rebuild tables, figures and doc from trials.csv")
     p.add_argument("--no-figures", action="store_true", help="skip Fig. 7 and the speed figure")
@@ -121,7 +140,7 @@ def config_from_args(args: argparse.Namespace) -> ProtocolConfig:
         policies["marlander-plus"] = args.marlander_plus_policy
     config = ProtocolConfig(
         simulator=args.simulator,
-        controllers=args.controllers,
+        controllers=args.controllers or PAPER_CONTROLLERS,
         conditions=args.conditions,
         trials=QUICK_TRIALS if args.quick else args.trials,
         seed=args.seed,
@@ -133,9 +152,143 @@ def config_from_args(args: argparse.Namespace) -> ProtocolConfig:
     return config
 
 
-def run(args: argparse.Namespace) -> int:
+def partial_reasons(config: ProtocolConfig, quick: bool, controllers: tuple[str, ...]) -> list[str]:
+    """Why ``config`` is not the full protocol over ``controllers`` (empty: it is)."""
+    reasons = ["--quick"] if quick else []
+    missing_conditions = [c for c in CONDITION_NAMES if c not in config.conditions]
+    if missing_conditions:
+        reasons.append(f"--conditions leaves out {', '.join(missing_conditions)}")
+    if config.trials == "paper" or int(config.trials) < FULL_TRIALS:
+        reasons.append(f"--trials {config.trials} (the full protocol flies {FULL_TRIALS} per cell)")
+    missing_controllers = [c for c in controllers if c not in config.controllers]
+    if missing_controllers:
+        reasons.append(f"--controllers leaves out {', '.join(missing_controllers)}")
+    return reasons
+
+
+def _inside(path: Path, folder: Path) -> bool:
+    return path.resolve().is_relative_to(folder.resolve())
+
+
+def _shipped_controllers(out: Path) -> tuple[str, ...]:
+    """The controllers of the run recorded in ``out/run.json``, or all of them."""
+    try:
+        return tuple(json.loads((out / "run.json").read_text())["config"]["controllers"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return CONTROLLERS
+
+
+def plan_output(args: argparse.Namespace) -> tuple[ProtocolConfig, Path, Path | None]:
+    """The config, results folder and document of the run ``args`` ask for; refuses what would hurt shipped data.
+
+    Raises ``ValueError`` naming the option before anything is written.
+    """
+    if args.update_shipped and args.quick:
+        raise ValueError("--update-shipped needs a full run; drop --quick.")
+    shipped_folder = RESULTS_ROOT / args.simulator
+    if args.update_shipped:
+        out = args.out or shipped_folder
+        if args.controllers is None and not args.report_only:
+            args.controllers = _shipped_controllers(out)
     config = config_from_args(args)
-    out = args.out or RESULTS_ROOT / (config.simulator + ("-quick" if args.quick else ""))
+    if args.update_shipped:
+        reasons = [] if args.report_only else partial_reasons(config, args.quick, _shipped_controllers(out))
+        if reasons:
+            raise ValueError(
+                f"--update-shipped replaces {out} only with a full run, but: {'; '.join(reasons)}. "
+                "Drop --update-shipped to write a partial run to runs/reproduce/."
+            )
+    elif args.report_only:
+        out = args.out or shipped_folder  # rebuilding from the shipped trials.csv changes no measurement
+    else:
+        out = args.out or _new_run_folder(f"{config.simulator}{'-quick' if args.quick else ''}")
+        if _inside(out, RESULTS_ROOT):
+            raise ValueError(
+                f"--out {out} is under {RESULTS_ROOT}, which holds the shipped results; only a full run with "
+                "--update-shipped writes there. Choose another --out (default runs/reproduce/...)."
+            )
+    may_refresh_doc = args.update_shipped or (args.report_only and _inside(out, RESULTS_ROOT))
+    doc = args.doc or (DEFAULT_DOC if may_refresh_doc else None)
+    if args.no_doc:
+        doc = None
+    if doc is not None and doc.resolve() == DEFAULT_DOC.resolve() and not may_refresh_doc:
+        raise ValueError(f"--doc {doc} is refreshed only from the shipped results (--update-shipped).")
+    if args.report_only and not (out / "trials.csv").is_file():
+        raise FileNotFoundError(f"--report-only: no trials.csv in {out}; pass the --out of an earlier run.")
+    return config, out, doc
+
+
+def _new_run_folder(name: str) -> Path:
+    """``runs/reproduce/NAME-<time>``, with ``-2``, ``-3``... when a run started in the same second."""
+    base = RUNS_ROOT / f"{name}-{time.strftime('%Y%m%d-%H%M%S')}"
+    folder, count = base, 1
+    while folder.exists():
+        count += 1
+        folder = base.with_name(f"{base.name}-{count}")
+    return folder
+
+
+def acquire_lock(folder: Path) -> Path:
+    """Create ``folder/.reproduce.lock`` holding this PID; refuse a folder another live run holds.
+
+    A lock whose PID is no longer running (a run that was killed) is taken over with a message.
+    """
+    folder.mkdir(parents=True, exist_ok=True)
+    lock = folder / LOCK_NAME
+    for _ in range(3):
+        try:
+            descriptor = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
+        except FileExistsError:
+            pid = _lock_pid(lock)
+            if pid is not None and _running(pid):
+                raise FileExistsError(
+                    f"--out {folder} is in use by another 'marlander reproduce' (PID {pid}, lock file {lock}); "
+                    "wait for it to finish or choose another --out."
+                ) from None
+            print(f"Taking over the stale lock {lock} (PID {pid} is not running).", file=sys.stderr)
+            lock.unlink(missing_ok=True)
+            continue
+        with os.fdopen(descriptor, "w") as handle:
+            handle.write(f"{os.getpid()}\n")
+        return lock
+    raise FileExistsError(f"Could not take the lock {lock}; another run keeps creating it.")
+
+
+def release_lock(lock: Path) -> None:
+    """Remove ``lock`` if it is still ours."""
+    if _lock_pid(lock) == os.getpid():
+        lock.unlink(missing_ok=True)
+
+
+def _lock_pid(lock: Path) -> int | None:
+    try:
+        return int(lock.read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def _running(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # alive, another user's
+        return True
+    return True
+
+
+def run(args: argparse.Namespace) -> int:
+    config, out, doc = plan_output(args)
+    if not args.report_only:
+        check_policies(config)  # a missing policy file stops the run before any folder is made
+    lock = acquire_lock(out)
+    try:
+        return _run_locked(args, config, out, doc)
+    finally:
+        release_lock(lock)
+
+
+def _run_locked(args: argparse.Namespace, config: ProtocolConfig, out: Path, doc: Path | None) -> int:
     started = time.perf_counter()
     if args.report_only:
         records = tables.read_trials_csv(out / "trials.csv")
@@ -160,15 +313,14 @@ def run(args: argparse.Namespace) -> int:
             "trials": len(records),
             "flight_seconds": round(flight_s or 0.0, 1),
             "total_seconds": round(total_s, 1),
-            "command": command_line(config, out),
+            "command": command_line(config, out, update_shipped=args.update_shipped),
         }
         (out / "run.json").write_text(json.dumps(run_record, indent=2) + "\n")
         written.append(tables.write_markdown(tables.run_table(run_record), out / "run.md"))
     elif (out / "run.json").is_file():  # keep the record of the run that flew the trials
         run_record = json.loads((out / "run.json").read_text())
         written.append(tables.write_markdown(tables.run_table(run_record), out / "run.md"))
-    doc = args.doc or (None if args.quick else DEFAULT_DOC)
-    if doc is not None and not args.no_doc and doc.is_file():
+    if doc is not None and doc.is_file():
         includes.update_includes(doc)
         written.append(doc)
     print(f"{len(records)} trials; {total_s:.1f} s. Wrote:", *(f"  {p}" for p in written), sep="\n")
@@ -216,9 +368,11 @@ def write_report(records: list[TrialRecord], config: ProtocolConfig, out: Path, 
     return written
 
 
-def command_line(config: ProtocolConfig, out: Path) -> str:
+def command_line(config: ProtocolConfig, out: Path, update_shipped: bool = False) -> str:
     """The ``marlander reproduce`` command that repeats ``config`` into ``out``."""
     parts = ["marlander reproduce", f"--simulator {config.simulator}"]
+    if update_shipped:
+        parts.append("--update-shipped")
     if config.controllers != PAPER_CONTROLLERS:
         parts.append("--controllers " + ",".join(config.controllers))
     if config.conditions != CONDITION_NAMES:

@@ -93,6 +93,7 @@ def wilson_interval(successes: int, trials: int, confidence: float = 0.95) -> tu
     ``half = z / (1 + z^2 / n) * sqrt(p (1 - p) / n + z^2 / 4n^2)``, with ``p = k / n`` and ``z``
     the ``(1 + confidence) / 2`` normal quantile (1.95996 for 95 %). Unlike ``p +- z se`` it stays
     in ``[0, 1]`` and is not empty at ``k = 0`` or ``k = n``. Returns ``(nan, nan)`` for ``n = 0``.
+    Source: Wilson 1927 (docs/references.md).
     """
     if trials < 0 or not 0 <= successes <= max(trials, 0):
         raise ValueError(f"Need 0 <= successes <= trials, got successes={successes}, trials={trials}.")

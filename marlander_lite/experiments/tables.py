@@ -54,7 +54,8 @@ PAPER: dict[str, dict[str, PaperRow]] = {
     },
 }
 """The paper's Tables I (static) and II (moving), and the per-drone deviations of Sec. IV-B/C.
-Note: Table I's 2.26 cm disagrees with the text's per-drone 2.67 and 3.26 cm (mean 2.965 cm)."""
+Note: Table I's 2.26 cm disagrees with the text's per-drone 2.67 and 3.26 cm (mean 2.965 cm).
+Source: Aschu et al., MARLander, Tables I and II (docs/references.md)."""
 TABLE_TITLES = {
     "static": "Table I: static platform (floor + UR10)",
     "moving": "Table II: moving platform (UR10, 0.2-0.5 m/s, linear + arc)",

@@ -68,9 +68,10 @@ class PointMassLandingEnv(SwarmLandingEnv):
     0.3 m above the plate and 0.5 m apart, at rest and level.
 
     ## Episode End
-    Terminated when every drone has landed (success), or when a drone touches anything other than
-    its own pad slowly (slower than 0.5 m/s relative) and within the pad radius (crash), two drones
-    come closer than 0.15 m (collision), or a drone leaves the arena. Truncated after
+    Terminated when every drone has landed (success), when a drone crashes, when two drones come
+    closer than 0.15 m (collision), or when a drone leaves the arena. A touchdown is a landing when
+    the drone touches its own pad, within the pad radius and slower than 0.5 m/s relative to the pad;
+    any other contact (the floor, the plate, another pad, too fast, off-centre) is a crash. Truncated after
     ``episode_seconds`` (10 s, 240 steps at 24 Hz).
 
     ## Arguments

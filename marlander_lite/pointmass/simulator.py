@@ -21,6 +21,7 @@ import numpy as np
 from marlander_lite import task
 from marlander_lite.episodes import SwarmState
 from marlander_lite.platforms import PlatformConfig, PlatformMotion
+from marlander_lite.pointmass.family import CUSHION_LENGTH, DynamicsFamily
 from marlander_lite.rotations import IDENTITY_QUAT, vector_norm
 from marlander_lite.task import TaskConfig
 
@@ -60,9 +61,23 @@ class PointMassParams:
     (together) the tilt's tangent and the
     thrust limits, by independent factors drawn log-uniformly from [1/(1+r), 1+r]; 0 keeps them fixed. Policies
     trained with r > 0 cope with other dynamics, the PyBullet Crazyflie's among them."""
+    family: DynamicsFamily | None = None
+    """Robust training (issue "policies that transfer"): each drone draws its own dynamics from this family at every
+    reset, replacing the constants above (and ``randomization``), with latency, mass mismatch, drag, a ground
+    cushion and a tracking-gain error on top. ``None`` (the default) keeps the fixed model above, bit for bit."""
 
     def __post_init__(self) -> None:
+        if isinstance(self.family, dict):
+            object.__setattr__(self, "family", DynamicsFamily.from_mapping(self.family))
+        if self.family is not None and not isinstance(self.family, DynamicsFamily):
+            raise TypeError(
+                f"PointMassParams.family must be a DynamicsFamily or a dict of its ranges, got {self.family!r}."
+            )
+        if self.family is not None and self.randomization:
+            raise ValueError("PointMassParams: give either randomization or family, not both (family replaces it).")
         for name, value in vars(self).items():
+            if name == "family":
+                continue
             if not np.isfinite(value):
                 raise ValueError(f"PointMassParams.{name} must be finite, got {value!r}.")
         checks = [
@@ -120,6 +135,9 @@ class PointMassSwarm:
         self._tan_tilt = np.full((e, 1), np.tan(np.radians(prm.max_tilt_deg)))
         self._thrust_max = np.full((e, 1), GRAVITY + prm.max_climb_acceleration)
         self._thrust_min = np.full((e, 1), GRAVITY - prm.max_sink_acceleration)
+        self.family = prm.family
+        if self.family is not None:
+            self._init_family(e, n)
         self.time = np.zeros(e)
         self.pos, self.vel, self.ang_vel = batch_zeros(e, n, 3), batch_zeros(e, n, 3), batch_zeros(e, n, 3)
         self.quat = batch_zeros(e, n, 4)
@@ -146,6 +164,8 @@ class PointMassSwarm:
             self._tan_tilt[env_ids, 0] = np.tan(np.radians(prm.max_tilt_deg)) * authority
             self._thrust_max[env_ids, 0] = GRAVITY + prm.max_climb_acceleration * authority
             self._thrust_min[env_ids, 0] = GRAVITY - prm.max_sink_acceleration * authority
+        if self.family is not None:
+            self._draw_family(env_ids, rng)
         self.time[env_ids] = 0.0
         self._update_platform(env_ids)
         self.pos[env_ids] = task.sample_spawn_positions(
@@ -160,7 +180,10 @@ class PointMassSwarm:
         self.motors_stopped[env_ids] = False
 
     def step(self, velocity: np.ndarray) -> None:
-        accel, axis = self._thrust(velocity)
+        if self.family is None:
+            accel, axis = self._thrust(velocity)
+        else:
+            accel, axis = self._family_thrust(velocity)
         if self.motors_stopped.any():  # no thrust: gravity alone, and the attitude stays
             stopped = self.motors_stopped[..., None]
             np.copyto(accel, (0.0, 0.0, -GRAVITY), where=stopped)
@@ -232,6 +255,69 @@ class PointMassSwarm:
         thrust = np.clip(fz / np.maximum(axis[..., 2], 0.1), self._thrust_min, self._thrust_max)
         accel = axis * thrust[..., None]
         accel[..., 2] -= GRAVITY
+        return accel, axis
+
+    # ------------------------------------------------------------------ robust training (DynamicsFamily)
+    def _init_family(self, e: int, n: int) -> None:
+        """Per-drone dynamics arrays ``(num_envs, N, ...)``, set to the family's lower-middle until the first draw."""
+        self._gain = np.empty((e, n, 3), order="F")
+        self._turn = np.empty((e, n, 1), order="F")
+        self._tan_tilt, self._thrust_max, self._thrust_min = (np.empty((e, n), order="F") for _ in range(3))
+        self._inv_mass, self._drag, self._cmd_gain = (np.ones((e, n, 1), order="F") for _ in range(3))
+        self._cushion = np.zeros((e, n), order="F")
+        self._latency = np.zeros((e, n, 1), order="F")
+        """Latency in policy periods, in [0, 2]: the command history below holds two periods."""
+        self._commands = np.zeros((2, e, n, 3))
+        """The two previous velocity commands (after the gain error), newest first."""
+        middle = {name: 0.5 * (low + high) for name, (low, high) in self.family.to_dict().items()}
+        self._set_family(np.arange(e), {name: np.full((e, n), value) for name, value in middle.items()})
+
+    def _draw_family(self, env_ids: np.ndarray, rng: np.random.Generator) -> None:
+        self._set_family(env_ids, self.family.sample(rng, (len(env_ids), self.task.num_drones)))
+        self._commands[:, env_ids] = 0.0
+
+    def _set_family(self, env_ids: np.ndarray, draw: dict[str, np.ndarray]) -> None:
+        dt = self._dt
+        latency = draw["latency_s"] / dt
+        if latency.max(initial=0.0) > 2.0:
+            raise ValueError(
+                f"latency_s up to {draw['latency_s'].max():.3f} s is more than two policy periods ({2 * dt:.3f} s), "
+                "which the point mass does not model; lower the latency range or policy_hz."
+            )
+        self._gain[env_ids, :, 0] = self._gain[env_ids, :, 1] = 1.0 / draw["velocity_time_constant"]
+        self._gain[env_ids, :, 2] = 1.0 / draw["vertical_time_constant"]
+        self._turn[env_ids, :, 0] = 1.0 - np.exp(-dt / draw["attitude_time_constant"])
+        self._tan_tilt[env_ids] = np.tan(np.radians(draw["max_tilt_deg"]))
+        self._thrust_max[env_ids] = GRAVITY + draw["max_climb_acceleration"]
+        self._thrust_min[env_ids] = GRAVITY - draw["max_sink_acceleration"]
+        self._inv_mass[env_ids, :, 0] = 1.0 / draw["mass_scale"]
+        self._drag[env_ids, :, 0] = draw["drag"]
+        self._cushion[env_ids] = draw["ground_cushion"]
+        self._cmd_gain[env_ids, :, 0] = draw["command_gain"]
+        self._latency[env_ids, :, 0] = latency
+
+    def _family_thrust(self, velocity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`_thrust` for a drone drawn from the family: the command arrives late and scaled, the
+        tracker's thrust is meant for the nominal mass, drag slows the drone and the ground cushions it."""
+        command = velocity * self._cmd_gain
+        # Latency L (in periods) as the share of the period during which the older command still acts:
+        # L = 0.5 flies half a period on the previous command; L = 1.5 half on each of the two before.
+        late = np.clip(self._latency, 0.0, 1.0)
+        later = np.clip(self._latency - 1.0, 0.0, 1.0)
+        older = (1.0 - later) * self._commands[0] + later * self._commands[1]
+        acting = (1.0 - late) * command + late * older
+        self._commands[1] = self._commands[0]
+        self._commands[0] = command
+        accel, axis = self._thrust(acting)
+        # _thrust's acceleration is that of the nominal mass: the same force moves a heavier drone less.
+        accel[..., 2] += GRAVITY
+        accel *= self._inv_mass
+        accel[..., 2] -= GRAVITY
+        accel -= self._drag * self.vel
+        if self._cushion.any():
+            rest_height, _ = self._surface()
+            height = np.maximum(self.pos[..., 2] - rest_height, 0.0)
+            accel[..., 2] += self._cushion * GRAVITY * (CUSHION_LENGTH / (CUSHION_LENGTH + height)) ** 2
         return accel, axis
 
     def _set_attitude(self, axis: np.ndarray) -> None:

@@ -11,6 +11,7 @@ import numpy as np
 from marlander_lite.make import make_vec_env
 from marlander_lite.policy_file import MLPPolicy, load_policy
 from marlander_lite.task import TaskConfig
+from marlander_lite.training_aids import TRAINING_AIDS_OFF
 
 
 @dataclass(frozen=True)
@@ -92,12 +93,11 @@ def evaluate_policy_file(
 ) -> EvaluationSummary:
     """Load ``path`` and run ``episodes`` deterministic episodes on the paper's random starts.
 
-    The task is the one the policy was trained on, except that training aids (near-pad starts, a
-    stricter landing tolerance) are switched off; ``env_options`` go to the env (``platform``,
-    ``sensing``, ``task`` overrides...).
+    The task is the one the policy was trained on, except that every training aid
+    (:data:`~marlander_lite.training_aids.TRAINING_AIDS_OFF`) is switched off; ``env_options`` go to the env
+    (``platform``, ``sensing``, ``task`` overrides...).
     """
     policy = load_policy(path)
-    training_aids = {"spawn_near_pad_fraction": 0.0, "landing_tolerance": None}
-    task = {**policy.contract.task, **training_aids, **env_options.pop("task", {})}
+    task = {**policy.contract.task, **TRAINING_AIDS_OFF, **env_options.pop("task", {})}
     infos = run_episodes(policy, simulator, episodes, seed, task=task, **env_options)
     return summarise(infos, TaskConfig().replace(**task).collision_distance)

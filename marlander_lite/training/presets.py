@@ -14,6 +14,7 @@ from typing import Any, Literal, get_args
 
 from marlander_lite.make import SIMULATORS
 from marlander_lite.platforms import PLATFORM_KINDS
+from marlander_lite.pointmass.family import DynamicsFamily
 
 Activation = Literal["relu", "tanh"]
 Schedule = Literal["constant", "linear"]
@@ -34,11 +35,13 @@ class TrainConfig:
     platform_height: tuple[float, float] | None = None
     """Plate top height range for UR10-held kinds (m); None keeps 0.5-1.0; (0.005, 1.0) covers the floor too."""
     sensing: str = "perfect"
-    """``perfect`` or ``vicon`` (motion-capture noise and latency on observations)."""
+    """``perfect``, ``vicon`` (motion-capture noise and latency on observations) or ``noisy`` (vicon with ten times
+    the attitude and body-rate noise, a training aid; :meth:`~marlander_lite.sensing.SensingConfig.noisy`)."""
     task: dict[str, Any] = field(default_factory=dict)
     """Overrides of :class:`~marlander_lite.task.TaskConfig` fields."""
-    dynamics: dict[str, float] = field(default_factory=dict)
-    """Point-mass only: fields of :class:`~marlander_lite.pointmass.simulator.PointMassParams` (e.g. randomization)."""
+    dynamics: dict[str, Any] = field(default_factory=dict)
+    """Point-mass only: fields of :class:`~marlander_lite.pointmass.simulator.PointMassParams` (e.g. ``family``, the
+    ranges of :class:`~marlander_lite.pointmass.family.DynamicsFamily` each drone draws its dynamics from)."""
     total_steps: int = 3_000_000
     """Environment steps (one step = one action for the whole swarm)."""
     num_envs: int = 256
@@ -100,8 +103,8 @@ class TrainConfig:
             problems.append(f"simulator must be one of {SIMULATORS}, got {self.simulator!r}")
         if self.platform not in PLATFORM_KINDS:
             problems.append(f"platform must be one of {PLATFORM_KINDS}, got {self.platform!r}")
-        if self.sensing not in ("perfect", "vicon"):
-            problems.append(f"sensing must be 'perfect' or 'vicon', got {self.sensing!r}")
+        if self.sensing not in ("perfect", "vicon", "noisy"):
+            problems.append(f"sensing must be 'perfect', 'vicon' or 'noisy', got {self.sensing!r}")
         if self.activation not in get_args(Activation):
             problems.append(f"activation must be one of {get_args(Activation)}, got {self.activation!r}")
         if self.lr_schedule not in get_args(Schedule):
@@ -144,15 +147,35 @@ class TrainConfig:
 
 
 PAPER_NET = (512, 512, 256, 128)
-"""The paper's Fig. 3 network: fully connected ReLU layers 512, 512, 256, 128."""
+"""The paper's Fig. 3 network: fully connected ReLU layers 512, 512, 256, 128 (Source: Aschu et al.,
+MARLander, Sec. III-D; docs/references.md)."""
 
-TRAINING_AIDS = {"spawn_near_pad_fraction": 0.25, "landing_tolerance": 0.03}
-"""A quarter of the episodes start near the pads, and a landing counts only within 3 cm of the pad centre;
-evaluation switches both off (``marlander_lite.training.evaluation``)."""
+TRAINING_AIDS = {
+    "spawn_near_pad_fraction": 0.25,
+    "landing_tolerance": 0.03,
+    "training_touchdown_speed": 0.3,
+    "approach_cone_penalty": 1.0,
+    "command_speed_penalty": 0.5,
+    "command_error_penalty": 0.2,
+}
+"""Training aids (not in the paper; :class:`~marlander_lite.task.TaskConfig` documents each): a quarter of the
+episodes start near the pads; a landing counts only within 3 cm of the pad centre and below 0.3 m/s; drones lose
+reward for flying below their approach cone, for commanding speeds they cannot brake from before the pad, and for
+commands far from their velocity. Evaluation switches every aid off (``training_aids.TRAINING_AIDS_OFF``). The
+smoothness aid ``action_change_penalty`` is not used: it penalises the exploration noise itself, and no run with it
+learnt to land."""
 
-_QUICK = TrainConfig(total_steps=4_000_000, sensing="vicon", task=dict(TRAINING_AIDS), dynamics={"randomization": 0.3})
+ROBUST_DYNAMICS: dict[str, Any] = {"family": DynamicsFamily().to_dict()}
+"""Each drone draws its velocity-tracker dynamics at every reset from the default
+:class:`~marlander_lite.pointmass.family.DynamicsFamily` (tilt limit 15-35 degrees, latency 0-60 ms, mass +-15 %,
+...), so that the policy flies in a way every member follows: PyBullet with either tracker, and real Crazyflies."""
+
+_QUICK = TrainConfig(
+    total_steps=8_000_000, sensing="noisy", task=dict(TRAINING_AIDS), dynamics=ROBUST_DYNAMICS, torch_threads=1
+)
 _FINETUNE = _QUICK.replace(
     simulator="crazyflie",
+    sensing="vicon",
     dynamics={},
     total_steps=3_000_000,
     num_envs=32,
@@ -172,6 +195,8 @@ _MOVING_PLATFORMS = {"platform": "moving-arc", "platform_speed": (0.0, 0.6), "pl
 PRESETS: dict[str, TrainConfig] = {
     "quick-cpu": _QUICK,
     "paper": _QUICK.replace(
+        **_MOVING_PLATFORMS,
+        torch_threads=2,
         total_steps=20_000_000,
         net_arch=PAPER_NET,
         critic_arch=(256, 256),

@@ -11,12 +11,19 @@ trains it while logging to CSV and TensorBoard. The run directory ends up holdin
     model.zip             the final SB3 model (pickle: for resuming training only)
     vecnormalize.pkl      the final observation/reward statistics (pickle: ditto)
     policy.safetensors    the pickle-free policy file for evaluation and deployment
+    resume/               only while a run is interrupted: what :func:`resume` needs (see ``resume.py``)
+
+Ctrl-C (or SIGTERM) stops a run at the next rollout boundary with a checkpoint, and
+:func:`resume` (``marlander train --resume RUN``) finishes it with the same files as a run that
+never stopped. A start that fails before learning begins removes what it wrote, so the same
+``--out`` can simply be tried again.
 """
 
 from __future__ import annotations
 
 import json
 import platform as python_platform
+import shutil
 import time
 from collections import deque
 from dataclasses import dataclass
@@ -29,7 +36,6 @@ import stable_baselines3
 import torch
 from stable_baselines3 import PPO
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
-from stable_baselines3.common.logger import configure
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 import marlander_lite
@@ -39,6 +45,15 @@ from marlander_lite.platforms import PlatformConfig
 from marlander_lite.task import TaskConfig
 from marlander_lite.training.export import export_policy
 from marlander_lite.training.presets import TrainConfig
+from marlander_lite.training.resume import (
+    RESUME_DIR,
+    CheckpointOnStop,
+    StopOnSignal,
+    TrainingInterrupted,
+    has_checkpoint,
+    load_checkpoint,
+    make_logger,
+)
 
 ACTIVATIONS = {"relu": torch.nn.ReLU, "tanh": torch.nn.Tanh}
 
@@ -133,6 +148,11 @@ class CheckpointEvery(BaseCallback):
         super().__init__()
         self.folder, self.every, self._next = folder, every, every
 
+    def _on_training_start(self) -> None:
+        # A fine-tuned or resumed model starts with steps already counted: aim at the next multiple.
+        if self.every:
+            self._next = (self.num_timesteps // self.every + 1) * self.every
+
     def _on_step(self) -> bool:
         if self.every and self.num_timesteps >= self._next:
             self._next += self.every
@@ -168,6 +188,19 @@ def _write_config(files: RunFiles, config: TrainConfig, preset: str | None) -> N
     files.config.write_text(json.dumps(record, indent=2))
 
 
+def read_run_record(files: RunFiles, option: str) -> dict[str, Any]:
+    """A run's ``config.json``; ``option`` (e.g. ``--resume``) names where the path came from in errors."""
+    if not files.config.is_file():
+        raise FileNotFoundError(f"{option} {files.root} is not a training run directory (no config.json).")
+    try:
+        record = json.loads(files.config.read_text())
+    except (UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise ValueError(f"{option} {files.root}: config.json is not a readable JSON file ({error}).") from None
+    if not isinstance(record, dict) or not isinstance(record.get("train"), dict):
+        raise ValueError(f"{option} {files.root}: config.json holds no 'train' section; was it written by train?")
+    return record
+
+
 def continue_from(config: TrainConfig, run_dir: str | Path) -> TrainConfig:
     """``config`` set to fine-tune the run in ``run_dir``: its drone count, observation layout and networks are kept."""
     files = RunFiles(Path(run_dir))
@@ -176,7 +209,7 @@ def continue_from(config: TrainConfig, run_dir: str | Path) -> TrainConfig:
             f"{run_dir} is not a finished training run (it needs config.json and model.zip); "
             "pass a directory written by 'marlander train'."
         )
-    source = TrainConfig.from_dict(json.loads(files.config.read_text())["train"])
+    source = TrainConfig.from_dict(read_run_record(files, "--init-from")["train"])
     observe = bool(source.task.get("observe_platform_velocity", False))
     task = {**config.task, "observe_platform_velocity": observe}
     # The model is loaded whole from model.zip, so its networks are the source's; the saved config must say so.
@@ -184,36 +217,106 @@ def continue_from(config: TrainConfig, run_dir: str | Path) -> TrainConfig:
     return config.replace(init_from=str(run_dir), num_drones=source.num_drones, task=task, **networks)
 
 
+def check_new_run(config: TrainConfig, out_dir: str | Path) -> RunFiles:
+    """Everything :func:`train` can refuse before it writes anything: raises ``ValueError`` / ``FileExistsError``."""
+    files = RunFiles(Path(out_dir))
+    if files.root.exists() and not files.root.is_dir():
+        raise FileExistsError(f"--out {files.root} is a file, not a run directory; choose another --out.")
+    if files.config.exists():
+        raise FileExistsError(
+            f"--out {files.root} already holds a training run; choose another --out "
+            f"(or 'marlander train --resume {files.root}' if it was interrupted)."
+        )
+    if not isinstance(config.seed, int) or config.seed < 0:
+        raise ValueError(f"--seed must be a non-negative integer, got {config.seed!r}.")
+    return files
+
+
 def train(
-    config: TrainConfig, out_dir: str | Path, *, preset: str | None = None, progress_bar: bool = False
+    config: TrainConfig,
+    out_dir: str | Path,
+    *,
+    preset: str | None = None,
+    progress_bar: bool = False,
+    callbacks: tuple[BaseCallback, ...] = (),
 ) -> RunFiles:
     """Train a MARLander policy with PPO and write the run directory ``out_dir``.
 
-    Refuses a directory that already holds a run, so no earlier result is overwritten.
+    Refuses a directory that already holds a run, so no earlier result is overwritten. Extra SB3
+    ``callbacks`` run after the library's own. Raises :class:`TrainingInterrupted` after saving a
+    checkpoint when SIGINT or SIGTERM arrives; :func:`resume` continues from it.
     """
-    files = RunFiles(Path(out_dir))
-    if files.config.exists():
-        raise FileExistsError(f"{files.root} already holds a training run; choose another --out directory.")
-    files.root.mkdir(parents=True, exist_ok=True)
-    _write_config(files, config, preset)
-    torch.set_num_threads(config.torch_threads)
+    files = check_new_run(config, out_dir)
+    created, had_logs = not files.root.exists(), files.progress.parent.exists()
+    env: VecNormalize | None = None
+    try:
+        files.root.mkdir(parents=True, exist_ok=True)
+        _write_config(files, config, preset)
+        torch.set_num_threads(config.torch_threads)
+        env = _normalised_env(config)
+        model = _new_model(config, env)
+        model.set_logger(make_logger(files.progress.parent, append=False))
+    except BaseException:  # Ctrl-C included: leave nothing that blocks trying the same --out again
+        if env is not None:
+            env.close()
+        if created:
+            shutil.rmtree(files.root, ignore_errors=True)
+        else:
+            files.config.unlink(missing_ok=True)
+            if not had_logs:
+                shutil.rmtree(files.progress.parent, ignore_errors=True)
+        raise
+    return _learn(model, config, files, preset, progress_bar, callbacks, target=None)
 
-    # 1. Environments, with running observation/reward normalisation.
+
+def resume(run_dir: str | Path, *, progress_bar: bool = False, callbacks: tuple[BaseCallback, ...] = ()) -> RunFiles:
+    """Continue an interrupted run to its configured total steps; ends with the files of an uninterrupted run.
+
+    The config is the run's own ``config.json``; the CSV log is continued, not rewritten.
+    """
+    files = RunFiles(Path(run_dir))
+    record = read_run_record(files, "--resume")
+    if "finished" in record:
+        raise ValueError(f"--resume {run_dir}: that run already finished ({record['finished']['steps']:,} steps).")
+    folder = files.root / RESUME_DIR
+    if not has_checkpoint(folder):
+        raise FileNotFoundError(
+            f"--resume {run_dir}: no interrupt checkpoint in {folder} (only a run stopped with Ctrl-C or "
+            "SIGTERM can be resumed)."
+        )
+    config = TrainConfig.from_dict(record["train"])
+    torch.set_num_threads(config.torch_threads)
+    model, target = load_checkpoint(
+        folder, lambda: make_training_env(config), {"learning_rate": _learning_rate(config)}, config.seed
+    )
+    model.set_logger(make_logger(files.progress.parent, append=True))
+    record.setdefault("resumed", []).append(
+        {"steps": int(model.num_timesteps), "at": time.strftime("%Y-%m-%dT%H:%M:%S")}
+    )
+    files.config.write_text(json.dumps(record, indent=2))
+    print(f"Resuming {files.root} at {model.num_timesteps:,} of {target:,} steps.")
+    return _learn(model, config, files, record.get("preset"), progress_bar, callbacks, target=target)
+
+
+def _normalised_env(config: TrainConfig) -> VecNormalize:
+    """The training environments, with running observation/reward normalisation."""
     env = make_training_env(config)
     if config.init_from:
         source = RunFiles(Path(config.init_from))
         env = VecNormalize.load(str(source.normalizer), env)
         env.training, env.norm_reward = True, config.normalize_rewards
-    else:
-        env = VecNormalize(
-            env,
-            norm_obs=config.normalize_observations,
-            norm_reward=config.normalize_rewards,
-            gamma=config.gamma,
-            epsilon=config.obs_norm_epsilon,
-        )
+        return env
+    return VecNormalize(
+        env,
+        norm_obs=config.normalize_observations,
+        norm_reward=config.normalize_rewards,
+        gamma=config.gamma,
+        epsilon=config.obs_norm_epsilon,
+    )
 
-    # 2. The PPO model: the actor and critic are separate MLPs of the preset's shape.
+
+def _new_model(config: TrainConfig, env: VecNormalize) -> PPO:
+    """The PPO model: the actor and critic are separate MLPs of the preset's shape (or the source run's)."""
     hyper = {
         "n_steps": config.n_steps,
         "batch_size": config.batch_size,
@@ -228,36 +331,59 @@ def train(
         "target_kl": config.target_kl,
     }
     if config.init_from:
-        model = PPO.load(
+        return PPO.load(
             RunFiles(Path(config.init_from)).model, env=env, device="cpu", seed=config.seed, custom_objects=hyper
         )
-    else:
-        critic = config.net_arch if config.critic_arch is None else config.critic_arch
-        policy_kwargs = {
-            "net_arch": {"pi": list(config.net_arch), "vf": list(critic)},
-            "activation_fn": ACTIVATIONS[config.activation],
-            "log_std_init": config.log_std_init,
-        }
-        model = PPO("MlpPolicy", env, policy_kwargs=policy_kwargs, seed=config.seed, device="cpu", **hyper)
+    critic = config.net_arch if config.critic_arch is None else config.critic_arch
+    policy_kwargs = {
+        "net_arch": {"pi": list(config.net_arch), "vf": list(critic)},
+        "activation_fn": ACTIVATIONS[config.activation],
+        "log_std_init": config.log_std_init,
+    }
+    return PPO("MlpPolicy", env, policy_kwargs=policy_kwargs, seed=config.seed, device="cpu", **hyper)
 
-    # 3. Learn, logging every rollout to CSV and TensorBoard.
-    model.set_logger(configure(str(files.progress.parent), ["csv", "tensorboard"]))
-    callbacks = CallbackList([LandingStatsCallback(), CheckpointEvery(files.checkpoints, config.checkpoint_every)])
+
+def _learn(
+    model: PPO,
+    config: TrainConfig,
+    files: RunFiles,
+    preset: str | None,
+    progress_bar: bool,
+    callbacks: tuple[BaseCallback, ...],
+    target: int | None,
+) -> RunFiles:
+    """Learn (up to ``target`` steps when resuming), then save the final model, normaliser and policy file."""
+    env = model.get_vec_normalize_env()
+    assert env is not None
+    stop = StopOnSignal()
+    on_stop = CheckpointOnStop(stop, files.root / RESUME_DIR, config.simulator)
+    checkpoints = CheckpointEvery(files.checkpoints, config.checkpoint_every)
+    everything = CallbackList([LandingStatsCallback(), checkpoints, on_stop, *callbacks])
     started = time.perf_counter()
-    model.learn(
-        config.total_steps, callback=callbacks, progress_bar=progress_bar, reset_num_timesteps=not config.init_from
-    )
+    with stop:
+        if target is None:
+            steps, reset = config.total_steps, not config.init_from
+        else:
+            steps, reset = target - model.num_timesteps, False
+        model.learn(steps, callback=everything, progress_bar=progress_bar, reset_num_timesteps=reset)
     seconds = time.perf_counter() - started
+    record = json.loads(files.config.read_text())
+    record["seconds_so_far"] = round(record.get("seconds_so_far", 0.0) + seconds, 1)
+    if on_stop.saved_at is not None:
+        files.config.write_text(json.dumps(record, indent=2))
+        env.close()
+        raise TrainingInterrupted(files.root, on_stop.saved_at)
 
-    # 4. Save: the SB3 model for resuming, and the pickle-free policy for everything else.
+    # Save: the SB3 model for resuming, and the pickle-free policy for everything else.
     model.save(files.model)
     env.save(str(files.normalizer))
     extra = {"preset": preset, "simulator": config.simulator, "steps": int(model.num_timesteps), "seed": config.seed}
     export_policy(
         model, files.policy, task_config_of(config), env if config.normalize_observations else None, extra=extra
     )
-    record = json.loads(files.config.read_text())
-    record["finished"] = {"seconds": round(seconds, 1), "steps": int(model.num_timesteps)}
+    record["finished"] = {"seconds": record.pop("seconds_so_far"), "steps": int(model.num_timesteps)}
     files.config.write_text(json.dumps(record, indent=2))
+    for leftover in (RESUME_DIR, RESUME_DIR + ".partial"):  # the run is whole: no checkpoint to resume from
+        shutil.rmtree(files.root / leftover, ignore_errors=True)
     env.close()
     return files

@@ -1,0 +1,299 @@
+"""The sections of the lab config: one frozen dataclass per YAML section (``mocap``, ``rates``, ...).
+
+Each field carries its allowed values as a pydantic constraint (``Annotated[Real, Field(gt=0, le=3)]``:
+a number in (0, 3]) and each ``__post_init__`` checks what involves several fields of its section
+with :func:`~marlander_lite.deploy.schema.check`. What involves several sections (a drone without a
+pad, a geofence margin too narrow for the speed limit, ...) is checked by
+:class:`marlander_lite.deploy.config.LabConfig`, which puts them together and loads the file;
+import them from there (``from marlander_lite.deploy.config import GeofenceConfig`` works).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Annotated, Any, Literal, get_args
+
+from pydantic import Field, with_config
+
+from marlander_lite.deploy.schema import (
+    SCHEMA_CONFIG,
+    Coordinate,
+    Flag,
+    Name,
+    ParamName,
+    Real,
+    Text,
+    Uri,
+    Whole,
+    check,
+)
+from marlander_lite.platforms import PLATFORM_KINDS, PlatformKind
+
+MocapKind = Literal["vicon", "optitrack", "qualisys", "vrpn", "mock"]
+MOCAP_KINDS: tuple[str, ...] = get_args(MocapKind)
+SimulatorKind = Literal["pybullet", "pointmass"]
+SIMULATOR_KINDS: tuple[str, ...] = get_args(SimulatorKind)
+
+
+@with_config(SCHEMA_CONFIG)
+@dataclass(frozen=True)
+class MocapConfig:
+    """Where poses come from (``motioncapture.connect(kind, cfg)``)."""
+
+    kind: MocapKind = "vicon"
+    """Motion-capture system, one of ``MOCAP_KINDS``."""
+    hostname: Annotated[Text, Field(max_length=253)] = ""
+    """Address of the motion-capture server (required for every kind but ``mock``)."""
+    connect_timeout_s: Annotated[Real, Field(gt=0, le=60)] = 5.0
+    """Give up connecting after this long (s); the vicon kind blocks while no server answers."""
+    options: Annotated[dict[Text, Text | Real], Field(max_length=32)] = field(default_factory=dict)
+    """Extra ``cfg`` strings passed to ``motioncapture.connect`` (e.g. ``rigid_bodies`` for ``mock``)."""
+
+    def __post_init__(self) -> None:
+        check(self.kind in MOCAP_KINDS, f"mocap.kind is {self.kind!r}; allowed: {', '.join(MOCAP_KINDS)}.")
+        check(
+            self.kind == "mock" or bool(self.hostname),
+            f"mocap.hostname is required for kind {self.kind!r} (the address of the motion-capture server).",
+        )
+        check(
+            self.kind != "mock" or "rigid_bodies" in self.options,
+            "mocap kind 'mock' needs options.rigid_bodies, e.g. 'cf1(0,0,0.01,1,0,0,0);plate(1,0,0,1,0,0,0)' "
+            "(x,y,z,qw,qx,qy,qz per body).",
+        )
+
+    def connect_cfg(self) -> dict[str, str]:
+        """The ``cfg`` dictionary for ``motioncapture.connect`` (every value a string)."""
+        cfg = {"hostname": self.hostname} if self.hostname else {}
+        cfg.update({k: str(v) for k, v in self.options.items()})
+        return cfg
+
+
+@with_config(SCHEMA_CONFIG)
+@dataclass(frozen=True)
+class DroneConfig:
+    """One Crazyflie."""
+
+    name: Name
+    """Its rigid-body name in the motion-capture system (letters, digits, ``_ . -``)."""
+    uri: Uri
+    """Its cflib URI, e.g. ``radio://0/80/2M/E7E7E7E701`` (``schema.URI_PATTERN``)."""
+    pad: Name
+    """The key of its landing pad under ``pads``."""
+
+
+@with_config(SCHEMA_CONFIG)
+@dataclass(frozen=True)
+class PadConfig:
+    """One landing pad, located by a tracked rigid body (the pad itself, or the plate carrying it)."""
+
+    body: Name
+    """Rigid-body name of the tracked object carrying the pad (often one plate for all pads)."""
+    offset: tuple[Coordinate, Coordinate, Coordinate] = (0.0, 0.0, 0.0)
+    """Centre of the pad's top face in that body's frame (m)."""
+    radius: Annotated[Real, Field(gt=0, le=1)] = 0.1
+    """Pad radius (m): a touchdown counts as a landing within it."""
+
+
+@with_config(SCHEMA_CONFIG)
+@dataclass(frozen=True)
+class RatesConfig:
+    """How often things happen."""
+
+    policy_hz: Annotated[Real, Field(ge=1, le=100)] = 24.0
+    """Rate the policy acts at (Hz); must equal the rate in the policy file."""
+    loop_hz: Annotated[Real, Field(ge=1, le=250)] = 48.0
+    """Rate of the control loop (Hz): poses to the drones, setpoints, safety, log. A whole multiple of policy_hz."""
+
+    def __post_init__(self) -> None:
+        check(
+            self.policy_hz <= self.loop_hz <= 250,
+            f"rates.loop_hz must be in [policy_hz, 250] = [{self.policy_hz}, 250] Hz, got {self.loop_hz} "
+            "(the firmware needs a setpoint at least every 0.5 s; radios carry a few hundred packets/s).",
+        )
+        ratio = self.loop_hz / self.policy_hz
+        check(
+            abs(ratio - round(ratio)) < 1e-9,
+            f"rates.loop_hz ({self.loop_hz}) must be a whole multiple of rates.policy_hz ({self.policy_hz}).",
+        )
+
+    @property
+    def ticks_per_action(self) -> int:
+        """Loop ticks per policy step."""
+        return round(self.loop_hz / self.policy_hz)
+
+
+@with_config(SCHEMA_CONFIG)
+@dataclass(frozen=True)
+class LimitsConfig:
+    """Speeds and heights of the flight."""
+
+    max_speed: Annotated[Real, Field(gt=0, le=3)] = 1.0
+    """Lab speed limit (m/s): every velocity setpoint is scaled down to at most this norm (the firmware
+    does not clamp velocity setpoints)."""
+    policy_max_speed: Annotated[Real, Field(gt=0, le=10)] = 3.0
+    """What a policy action of 1.0 means (m/s); must equal the max_speed in the policy file."""
+    takeoff_height: Annotated[Real, Field(ge=0.2, le=3)] = 1.0
+    """Height the high-level commander takes off to before the policy starts (m, world z)."""
+    takeoff_duration: Annotated[Real, Field(ge=0.5, le=10)] = 2.5
+    """Time of the take-off manoeuvre (s)."""
+    land_speed: Annotated[Real, Field(ge=0.05, le=1)] = 0.3
+    """Descent speed of a safety landing (m/s); its duration is height / land_speed, at least 1 s."""
+    touchdown_height: Annotated[Real, Field(gt=0, le=0.1)] = 0.02
+    """A drone closer than this above its goal point, within its pad radius, has touched down (m)."""
+    touchdown_speed: Annotated[Real, Field(gt=0, le=1)] = 0.5
+    """... and slower than this relative to the pad (m/s); then its motors are stopped."""
+    handover_height: Annotated[Real, Field(ge=0, le=0.3)] = 0.06
+    """A drone lingering this close above its goal (m), within half its pad radius, for ``handover_dwell_s``
+    over a pad slower than 0.1 m/s is landed on the pad by the high-level commander (0 disables)."""
+    handover_dwell_s: Annotated[Real, Field(ge=0, le=10)] = 0.5
+    """How long a drone must linger above its pad before the hand-over (s)."""
+    max_flight_s: Annotated[Real, Field(ge=1, le=600)] = 60.0
+    """After this long under the policy, every drone still flying is landed (s)."""
+
+
+@with_config(SCHEMA_CONFIG)
+@dataclass(frozen=True)
+class GeofenceConfig:
+    """The arena box (world frame, m). Crossing the inner box (shrunk by ``margin``) aborts the flight.
+
+    The margin is the room a drone has to brake in: the lab config is refused unless it is at
+    least :func:`marlander_lite.deploy.safety.required_margin` of ``limits.max_speed`` (the
+    stopping distance from the firmware's overshoot of that speed, with its measured delay and
+    deceleration).
+    """
+
+    x: tuple[Coordinate, Coordinate] = (-2.0, 2.0)
+    y: tuple[Coordinate, Coordinate] = (-2.0, 2.0)
+    z: tuple[Coordinate, Coordinate] = (0.0, 2.5)
+    margin: Annotated[Real, Field(ge=0, le=4)] = 0.6
+    """The soft fence lies this far inside the box (m, sides and ceiling): room to stop before the hard walls
+    (0.59 m at the default max_speed of 1 m/s; 3.66 m at the largest, 3 m/s)."""
+
+    def __post_init__(self) -> None:
+        for axis in "xyz":
+            lo, hi = getattr(self, axis)
+            check(lo < hi, f"geofence.{axis} must be [low, high] with low < high, got [{lo}, {hi}].")
+            walls = 1 if axis == "z" else 2  # the floor is never raised: z loses the margin once, at the ceiling
+            check(
+                hi - lo > walls * self.margin,
+                f"geofence.{axis} is not wider than {walls} x the margin ({self.margin} m): no room in the soft fence.",
+            )
+
+    def bounds(self, soft: bool = False) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        """``(low xyz, high xyz)`` of the hard box, or of the soft box inside it (the floor is never raised)."""
+        m = self.margin if soft else 0.0
+        low = (self.x[0] + m, self.y[0] + m, self.z[0])
+        high = (self.x[1] - m, self.y[1] - m, self.z[1] - m)
+        return low, high
+
+    def contains(self, pos: Any, soft: bool = False) -> bool:
+        """Whether one point ``(3,)`` is inside the (soft) box; False for NaN."""
+        low, high = self.bounds(soft)
+        return all(lo <= float(p) <= hi for p, lo, hi in zip(pos, low, high, strict=True))
+
+
+@with_config(SCHEMA_CONFIG)
+@dataclass(frozen=True)
+class SafetyConfig:
+    """Thresholds of the safety rules (see ``docs/lab_guide.md``)."""
+
+    stale_hover_s: Real = 0.1
+    """A body unseen (or invalid) for longer than this makes every flying drone hover (s)."""
+    stale_land_s: Real = 0.5
+    """... and for longer than this makes every flying drone land (s)."""
+    geofence_hover_s: Annotated[Real, Field(ge=0, le=5)] = 0.5
+    """After a geofence breach, hover this long before landing (s)."""
+    max_body_speed: Annotated[Real, Field(ge=1, le=50)] = 8.0
+    """A pose implying a faster jump than this is rejected as a mocap glitch (m/s)."""
+    arming_timeout_s: Annotated[Real, Field(ge=0.5, le=60)] = 3.0
+    """Give up the pre-flight check after this long (s)."""
+    arming_max_speed: Annotated[Real, Field(gt=0, le=1)] = 0.1
+    """Drones must be still before take-off (m/s)."""
+    arming_max_tilt_deg: Annotated[Real, Field(gt=0, le=60)] = 20.0
+    """Drones must be roughly level before take-off (degrees)."""
+    arming_min_separation: Annotated[Real, Field(ge=0, le=2)] = 0.25
+    """Drones must be at least this far apart before take-off (m)."""
+    land_timeout_margin_s: Annotated[Real, Field(ge=0.5, le=30)] = 3.0
+    """A landing that has not ended this long after its planned duration ends with motors off (s)."""
+
+    def __post_init__(self) -> None:
+        check(
+            0 < self.stale_hover_s < self.stale_land_s <= 2.0,
+            "safety thresholds must satisfy 0 < stale_hover_s < stale_land_s <= 2 s "
+            f"(got {self.stale_hover_s}, {self.stale_land_s}): the firmware cuts motors after 2 s without setpoints.",
+        )
+
+
+@with_config(SCHEMA_CONFIG)
+@dataclass(frozen=True)
+class CrazyflieParamsConfig:
+    """Firmware parameters set on every Crazyflie after connecting (cflib ``param.set_value``)."""
+
+    estimator: Whole = 2
+    """``stabilizer.estimator``: 2 is the Kalman filter, the only one that fuses ``send_extpose``."""
+    controller: Whole = 1
+    """``stabilizer.controller``: 1 is PID, which tracks velocity setpoints well."""
+    ext_quat_std_dev: Annotated[Real, Field(gt=0, le=1)] = 0.008
+    """``locSrv.extQuatStdDev``: trust in the mocap attitude (rad)."""
+    extra: Annotated[dict[ParamName, Real], Field(max_length=64)] = field(default_factory=dict)
+    """More parameters, ``group.name: value``, set after the ones above."""
+    arm: Flag = False
+    """Send an arming request after connecting (``supervisor.send_arming_request``): needed by the
+    Crazyflie 2.1 Brushless; the brushed Crazyflie 2.x of the paper arms itself."""
+    param_timeout_s: Annotated[Real, Field(gt=0, le=60)] = 5.0
+    """Each parameter write must be confirmed by the Crazyflie within this long (s)."""
+
+    def __post_init__(self) -> None:
+        check(
+            self.estimator == 2,
+            f"crazyflie.estimator must be 2 (Kalman), got {self.estimator}: only Kalman fuses external poses.",
+        )
+        check(self.controller in (1, 2, 3, 4), "crazyflie.controller must be 1 (PID, recommended), 2, 3 or 4.")
+
+    def as_params(self) -> dict[str, float]:
+        """Every parameter to set, in order."""
+        return {
+            "stabilizer.estimator": self.estimator,
+            "stabilizer.controller": self.controller,
+            "locSrv.extQuatStdDev": self.ext_quat_std_dev,
+            **self.extra,
+        }
+
+
+@with_config(SCHEMA_CONFIG)
+@dataclass(frozen=True)
+class SimulationConfig:
+    """The simulated lab of ``marlander deploy --sim`` (ignored on hardware)."""
+
+    simulator: SimulatorKind = "pybullet"
+    """Physics: ``pybullet`` (the Crazyflie model) or ``pointmass`` (fast)."""
+    platform: PlatformKind = "static-floor"
+    """Platform motion, one of ``marlander_lite.platforms.PLATFORM_KINDS``."""
+    platform_speed: Annotated[Real, Field(gt=0, le=2)] | None = None
+    """Tool speed of a moving platform (m/s)."""
+    start_positions: Annotated[tuple[tuple[Coordinate, Coordinate], ...], Field(max_length=64)] | None = None
+    """Where the drones stand on the floor (x, y per drone, m); random when left out."""
+    seed: Annotated[Whole, Field(ge=0, lt=2**32)] = 0
+    """Seed of the simulated lab (platform placement, start positions, mocap noise)."""
+    pos_noise_std: Annotated[Real, Field(ge=0, le=1)] = 0.001
+    """Mocap position noise (m)."""
+    quat_noise_std: Annotated[Real, Field(ge=0, le=1)] = 0.002
+    """Mocap quaternion noise per component."""
+    latency_s: Annotated[Real, Field(ge=0, le=1)] = 0.01
+    """Mocap latency (s), rounded up to whole loop ticks."""
+    drop_rate: Annotated[Real, Field(ge=0, lt=1)] = 0.0
+    """Probability that a mocap frame is lost."""
+    occlusion_rate: Annotated[Real, Field(ge=0, lt=1)] = 0.0
+    """Probability that a body is missing from a frame."""
+    max_time_s: Annotated[Real, Field(ge=1, le=600)] = 60.0
+    """Simulated time after which the rehearsal stops (s)."""
+
+    def __post_init__(self) -> None:
+        check(
+            self.simulator in SIMULATOR_KINDS,
+            f"simulation.simulator is {self.simulator!r}; allowed: {', '.join(SIMULATOR_KINDS)}.",
+        )
+        check(
+            self.platform in PLATFORM_KINDS,
+            f"simulation.platform is {self.platform!r}; allowed: {', '.join(PLATFORM_KINDS)}.",
+        )

@@ -1,0 +1,338 @@
+"""The transfer matrix: one policy flown on every simulator and velocity tracker it may meet.
+
+A policy is judged where it will fly, not where it was trained. :func:`transfer_matrix` flies one
+policy file on each *column* (the point mass; PyBullet with our cascaded PID; PyBullet with the
+Crazyflie firmware's own velocity tracker; that tracker perturbed: a 15 % heavier drone, 60 ms of
+command latency, velocity-loop gains x0.7 and x1.3; every PyBullet column with ground effect, drag
+and downwash on) and each *row* (the pad on the floor, on the UR10 flange, moving along an arc or a
+line at 0.2-0.5 m/s). Every column flies the same random starts (one seed per row and episode).
+
+Besides success (with a Wilson interval) and landing error, each cell measures whether the flight is
+one a real Crazyflie can follow:
+
+* ``touchdown_speed``: mean speed relative to the pad at each drone's first contact (m/s);
+* ``command_near_pad_p95``: 95th percentile of the commanded speed relative to the pad while a drone
+  is within 0.5 m of its goal (m/s);
+* ``tilt_limit_fraction``: share of flying steps with the tilt within 1 degree of the firmware's 20
+  degree limit or beyond (on the firmware columns: how long the tracker is saturated);
+* ``approach_height``: height above the pad when a drone first comes within 0.5 m of it horizontally (m).
+
+``marlander transfer POLICY`` prints the table and writes ``transfer.csv`` and ``transfer.json``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib
+import json
+import multiprocessing
+import time
+from concurrent import futures
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from marlander_lite import task, training_aids
+from marlander_lite.envs.options import policy_input
+from marlander_lite.episodes import LandingEpisodes
+from marlander_lite.experiments.metrics import wilson_interval
+from marlander_lite.experiments.protocol import trial_seed
+from marlander_lite.policy_file import MLPPolicy, load_policy
+
+NEAR_PAD = 0.5
+"""Distance to the goal (m) within which commanded speeds are measured, and horizontal distance at which the
+approach height is read."""
+TILT_LIMIT_DEG = 20.0
+"""The Crazyflie firmware's roll/pitch clamp (deg), the reference for ``tilt_limit_fraction``."""
+
+
+@dataclass(frozen=True)
+class Column:
+    """A simulator with its options: one column of the matrix."""
+
+    name: str
+    simulator: str
+    options: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Row:
+    """A platform condition: one row of the matrix."""
+
+    name: str
+    platform: str
+    speed: tuple[float, float] | None = None
+
+
+def _firmware(**perturbation: float) -> dict[str, Any]:
+    options: dict[str, Any] = {"controller": "firmware"}
+    if perturbation:
+        options["perturbation"] = perturbation
+    return options
+
+
+COLUMNS: tuple[Column, ...] = (
+    Column("point mass", "pointmass"),
+    Column("PyBullet PID", "crazyflie"),
+    Column("PyBullet firmware", "crazyflie", _firmware()),
+    Column("firmware mass +15 %", "crazyflie", _firmware(mass_scale=1.15)),
+    Column("firmware latency 60 ms", "crazyflie", _firmware(latency_s=0.06)),
+    Column("firmware gains x0.7", "crazyflie", _firmware(gain_scale=0.7)),
+    Column("firmware gains x1.3", "crazyflie", _firmware(gain_scale=1.3)),
+)
+"""The simulators a policy is flown on; the PyBullet ones use the default ``aero`` physics."""
+
+ROWS: tuple[Row, ...] = (
+    Row("floor", "static-floor"),
+    Row("UR10", "static-elevated"),
+    Row("arc 0.2-0.5 m/s", "moving-arc", (0.2, 0.5)),
+    Row("line 0.2-0.5 m/s", "moving-linear", (0.2, 0.5)),
+)
+"""The platform conditions; moving rows draw the tool speed per episode."""
+
+
+@dataclass(frozen=True)
+class CellResult:
+    """How one policy did on one (row, column) cell."""
+
+    row: str
+    column: str
+    episodes: int
+    successes: int
+    success_rate: float
+    wilson_low: float
+    wilson_high: float
+    landing_error_cm: float
+    """Mean horizontal distance from the pad centre over landed drones of successful episodes (cm)."""
+    landing_time_s: float
+    """Mean time until the last drone landed, successful episodes (s)."""
+    collision_rate: float
+    touchdown_speed: float
+    command_near_pad_p95: float
+    tilt_limit_fraction: float
+    approach_height: float
+    wall_s: float
+
+
+def _find_column(name: str) -> Column:
+    for column in COLUMNS:
+        if column.name == name:
+            return column
+    raise ValueError(f"Unknown transfer column {name!r}; allowed: {', '.join(c.name for c in COLUMNS)}.")
+
+
+def _find_row(name: str) -> Row:
+    for row in ROWS:
+        if row.name == name:
+            return row
+    raise ValueError(f"Unknown transfer row {name!r}; allowed: {', '.join(r.name for r in ROWS)}.")
+
+
+def build_episodes(policy: MLPPolicy, column: Column, row: Row, sensing: str) -> LandingEpisodes:
+    """One swarm of ``column``'s simulator on ``row``'s platform, with the policy's task and no training aid."""
+    builder = importlib.import_module(f"marlander_lite.{column.simulator}.envs").build_simulator
+    task_fields = {**policy.contract.task, **training_aids.TRAINING_AIDS_OFF}
+    options = dict(
+        num_drones=policy.contract.num_drones,
+        platform=row.platform,
+        platform_speed=row.speed,
+        task=task_fields,
+        sensing=sensing,
+        **column.options,
+    )
+    simulator, sensing_config = builder(**options)
+    return LandingEpisodes(simulator, sensing_config)
+
+
+def fly_cell(policy_path: str, column_name: str, row_name: str, episodes: int, seed: int, sensing: str) -> CellResult:
+    """Fly ``episodes`` episodes of one cell (runs in a worker process)."""
+    started = time.perf_counter()
+    policy = load_policy(policy_path)
+    column, row = _find_column(column_name), _find_row(row_name)
+    world = build_episodes(policy, column, row, sensing)
+    cfg = world.task
+    successes, collisions = 0, 0
+    errors: list[float] = []
+    times: list[float] = []
+    touchdowns: list[float] = []
+    near_commands: list[np.ndarray] = []
+    heights: list[float] = []
+    tilt_steps = saturated_steps = 0
+    try:
+        for k in range(episodes):
+            world.seed(trial_seed(seed, row.name, k))
+            obs = world.reset()
+            touched = np.zeros(cfg.num_drones, dtype=bool)
+            approached = np.zeros(cfg.num_drones, dtype=bool)
+            while True:
+                action = policy.act(policy_input(obs))
+                command = task.action_to_velocity(action, cfg.num_drones, cfg.max_speed)[0]
+                outcome = world.step(action)
+                s = world.sim.state()
+                flying = ~outcome.landed[0] & ~touched
+                rel_pos = s.pos[0] - s.pad_pos[0]
+                horizontal = np.hypot(rel_pos[:, 0], rel_pos[:, 1])
+                near = flying & (np.linalg.norm(rel_pos, axis=1) <= NEAR_PAD)
+                near_commands.append(np.linalg.norm(command - s.pad_vel[0], axis=1)[near])
+                first_near = flying & ~approached & (horizontal <= NEAR_PAD)
+                heights.extend(rel_pos[first_near, 2].tolist())
+                approached |= horizontal <= NEAR_PAD
+                quat = s.quat[0]
+                tilt = np.degrees(np.arccos(np.clip(1.0 - 2.0 * (quat[:, 0] ** 2 + quat[:, 1] ** 2), -1.0, 1.0)))
+                tilt_steps += int(flying.sum())
+                saturated_steps += int((flying & (tilt >= TILT_LIMIT_DEG - 1.0)).sum())
+                contact = (outcome.landed_now[0] | outcome.crashed[0]) & ~touched
+                touchdowns.extend(outcome.rel_speed[0][contact].tolist())
+                touched |= contact
+                if outcome.done[0]:
+                    break
+                obs = outcome.obs
+            collisions += bool(outcome.min_separation[0] < cfg.collision_distance)
+            if outcome.success[0]:
+                successes += 1
+                errors.extend(outcome.landing_error[0].tolist())
+                times.append(float(np.nanmax(outcome.landing_time[0])))
+    finally:
+        world.sim.close()
+    low, high = wilson_interval(successes, episodes)
+    commands = np.concatenate(near_commands) if near_commands else np.zeros(0)
+
+    def mean(values: list[float], scale: float = 1.0) -> float:
+        return float(scale * np.mean(values)) if values else float("nan")
+
+    return CellResult(
+        row=row.name,
+        column=column.name,
+        episodes=episodes,
+        successes=successes,
+        success_rate=successes / episodes,
+        wilson_low=low,
+        wilson_high=high,
+        landing_error_cm=mean(errors, 100.0),
+        landing_time_s=mean(times),
+        collision_rate=collisions / episodes,
+        touchdown_speed=mean(touchdowns),
+        command_near_pad_p95=float(np.percentile(commands, 95)) if commands.size else float("nan"),
+        tilt_limit_fraction=saturated_steps / tilt_steps if tilt_steps else float("nan"),
+        approach_height=mean(heights),
+        wall_s=time.perf_counter() - started,
+    )
+
+
+@dataclass(frozen=True)
+class TransferConfig:
+    """One transfer run: which policy, how many episodes a cell, which cells."""
+
+    policy: str
+    """Path of the policy file."""
+    episodes: int = 200
+    """Episodes per cell."""
+    seed: int = 0
+    """Base seed; episode ``k`` of row ``r`` starts from ``trial_seed(seed, r, k)`` in every column."""
+    columns: tuple[str, ...] = tuple(c.name for c in COLUMNS)
+    rows: tuple[str, ...] = tuple(r.name for r in ROWS)
+    sensing: str = "vicon"
+    """``vicon`` (the lab's noise and latency) or ``perfect``."""
+    workers: int = 2
+    """Worker processes; 1 flies every cell in this process."""
+
+    def __post_init__(self) -> None:
+        if isinstance(self.episodes, bool) or not isinstance(self.episodes, int) or self.episodes < 1:
+            raise ValueError(f"--episodes must be an integer >= 1, got {self.episodes!r}.")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise ValueError(f"--seed must be an integer >= 0, got {self.seed!r}.")
+        if not isinstance(self.workers, int) or self.workers < 1:
+            raise ValueError(f"--workers must be an integer >= 1, got {self.workers!r}.")
+        if self.sensing not in ("vicon", "perfect"):
+            raise ValueError(f"--sensing must be 'vicon' or 'perfect', got {self.sensing!r}.")
+        if not self.columns or not self.rows:
+            raise ValueError("Give at least one column and one row.")
+        for name in self.columns:
+            _find_column(name)
+        for name in self.rows:
+            _find_row(name)
+
+
+def transfer_matrix(config: TransferConfig) -> list[CellResult]:
+    """Fly every cell of ``config`` and return the results, rows outer, columns inner, in the given order."""
+    load_policy(config.policy)  # a bad file fails here, before any worker starts
+    cells = [(c, r) for r in config.rows for c in config.columns]
+    args = [(str(config.policy), c, r, config.episodes, config.seed, config.sensing) for c, r in cells]
+    if config.workers == 1:
+        return [fly_cell(*a) for a in args]
+    method = "fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn"
+    with futures.ProcessPoolExecutor(config.workers, mp_context=multiprocessing.get_context(method)) as pool:
+        return list(pool.map(fly_cell, *zip(*args, strict=True)))
+
+
+def format_table(results: list[CellResult]) -> str:
+    """A markdown table: one line per row, one column per simulator, ``success % [low, high] / error cm``."""
+    columns = list(dict.fromkeys(r.column for r in results))
+    rows = list(dict.fromkeys(r.row for r in results))
+    by_cell = {(r.row, r.column): r for r in results}
+    lines = ["| | " + " | ".join(columns) + " |", "|---" * (len(columns) + 1) + "|"]
+    for row in rows:
+        cells = []
+        for column in columns:
+            r = by_cell[(row, column)]
+            cells.append(
+                f"{100 * r.success_rate:.1f} [{100 * r.wilson_low:.0f}, {100 * r.wilson_high:.0f}] / "
+                f"{r.landing_error_cm:.2f} cm"
+            )
+        lines.append(f"| {row} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def format_flight_table(results: list[CellResult]) -> str:
+    """Flight quality per cell: touchdown speed, p95 command near the pad, tilt-limit share, approach height."""
+    lines = [
+        "| row | column | touchdown m/s | command p95 near pad m/s | at tilt limit % | height at 0.5 m | "
+        "collisions % |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for r in results:
+        lines.append(
+            f"| {r.row} | {r.column} | {r.touchdown_speed:.2f} | {r.command_near_pad_p95:.2f} | "
+            f"{100 * r.tilt_limit_fraction:.1f} | {r.approach_height:.2f} | {100 * r.collision_rate:.1f} |"
+        )
+    return "\n".join(lines)
+
+
+CSV_FIELDS = tuple(CellResult.__dataclass_fields__)
+
+
+def write_results(config: TransferConfig, results: list[CellResult], out: Path, wall_s: float) -> list[Path]:
+    """``transfer.csv`` (one line per cell), ``transfer.json`` (config, policy hash, cells) and ``transfer.md``."""
+    out.mkdir(parents=True, exist_ok=True)
+    csv_path, json_path, md_path = out / "transfer.csv", out / "transfer.json", out / "transfer.md"
+    with csv_path.open("w") as f:
+        f.write(",".join(CSV_FIELDS) + "\n")
+        for r in results:
+            f.write(",".join(_csv_value(getattr(r, name)) for name in CSV_FIELDS) + "\n")
+    digest = hashlib.sha256(Path(config.policy).read_bytes()).hexdigest()
+    meta = {"config": asdict(config), "policy_sha256": digest, "wall_s": round(wall_s, 1)}
+    json_path.write_text(json.dumps({**meta, "cells": [asdict(r) for r in results]}, indent=2) + "\n")
+    md_path.write_text(
+        f"Transfer matrix of `{config.policy}` ({config.episodes} episodes a cell, seed {config.seed}, "
+        f"sensing {config.sensing}): success % [95 % Wilson] / mean landing error.\n\n"
+        + format_table(results)
+        + "\n\n"
+        + format_flight_table(results)
+        + "\n"
+    )
+    return [csv_path, json_path, md_path]
+
+
+def _csv_value(value: Any) -> str:
+    if isinstance(value, float):
+        return f"{value:.6g}"
+    text = str(value)
+    return f'"{text}"' if "," in text else text
+
+
+def read_results(path: str | Path) -> list[CellResult]:
+    """The cells of a ``transfer.json`` written by :func:`write_results`."""
+    data = json.loads(Path(path).read_text())
+    return [CellResult(**cell) for cell in data["cells"]]

@@ -1,0 +1,89 @@
+"""``marlander transfer POLICY``: fly one policy on every simulator and tracker of the transfer matrix.
+
+Examples::
+
+    marlander transfer data/policies/quick-cpu.safetensors                  # 200 episodes a cell, 28 cells
+    marlander transfer P --episodes 20 --rows floor,UR10 --out runs/t      # a quick look
+    marlander transfer P --columns "point mass,PyBullet firmware"
+
+Writes ``transfer.csv``, ``transfer.json`` and ``transfer.md`` to ``--out`` (default
+``runs/transfer-<policy name>``) and prints the table. Existing files are kept unless ``--force``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from marlander_lite.experiments.commands import _choices
+from marlander_lite.experiments.transfer import (
+    COLUMNS,
+    ROWS,
+    TransferConfig,
+    format_flight_table,
+    format_table,
+    transfer_matrix,
+    write_results,
+)
+
+OUTPUT_NAMES = ("transfer.csv", "transfer.json", "transfer.md")
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add ``transfer`` to the ``marlander`` command line."""
+    p = subparsers.add_parser(
+        "transfer",
+        help="fly a policy on every simulator and tracker (the transfer matrix)",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("policy", type=Path, help="policy file (.safetensors)")
+    p.add_argument("--episodes", type=int, default=200, help="episodes per cell (default 200)")
+    p.add_argument("--seed", type=int, default=0, help="base seed of the episodes (default 0)")
+    columns = tuple(c.name for c in COLUMNS)
+    rows = tuple(r.name for r in ROWS)
+    p.add_argument(
+        "--columns",
+        type=_choices(columns, "column(s)"),
+        default=columns,
+        help=f"comma-separated, from: {', '.join(columns)} (or all)",
+    )
+    p.add_argument(
+        "--rows", type=_choices(rows, "row(s)"), default=rows, help=f"comma-separated, from: {', '.join(rows)} (or all)"
+    )
+    p.add_argument("--sensing", choices=("vicon", "perfect"), default="vicon", help="observation model (default vicon)")
+    p.add_argument("--workers", type=int, default=2, help="worker processes (default 2)")
+    p.add_argument("--out", type=Path, help="results folder (default runs/transfer-<policy name>)")
+    p.add_argument("--force", action="store_true", help="overwrite transfer.* files already in --out")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    if not args.policy.is_file():
+        raise FileNotFoundError(f"--policy: no file {args.policy}")
+    config = TransferConfig(
+        policy=str(args.policy),
+        episodes=args.episodes,
+        seed=args.seed,
+        columns=args.columns,
+        rows=args.rows,
+        sensing=args.sensing,
+        workers=args.workers,
+    )
+    out = args.out or Path("runs") / f"transfer-{args.policy.stem}"
+    existing = [out / name for name in OUTPUT_NAMES if (out / name).exists()]
+    if existing and not args.force:
+        raise ValueError(f"--out: {', '.join(map(str, existing))} already exist; choose another --out or add --force")
+    cells = len(config.rows) * len(config.columns)
+    print(f"Flying {args.policy} on {cells} cells x {config.episodes} episodes ({config.workers} workers) ...")
+    started = time.perf_counter()
+    results = transfer_matrix(config)
+    wall = time.perf_counter() - started
+    paths = write_results(config, results, out, wall)
+    print(format_table(results))
+    print()
+    print(format_flight_table(results))
+    print(f"\n{wall:.0f} s; wrote {', '.join(map(str, paths))}", file=sys.stderr)
+    return 0

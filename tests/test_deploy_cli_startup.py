@@ -1,0 +1,73 @@
+"""Ctrl-C during the ``marlander`` command's start-up: one line ``Interrupted.``, exit status 130, no traceback.
+
+About 2 s of the command's start-up is importing ``marlander_lite`` (gymnasium, pettingzoo,
+Stable-Baselines3 and torch) before ``cli.main`` runs; ``marlander_lite/__init__.py`` handles a
+Ctrl-C there when the program is the ``marlander`` command, and only then.
+"""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+MARLANDER = Path(sys.executable).with_name("marlander")
+pytestmark = pytest.mark.skipif(
+    not MARLANDER.exists() or os.name != "posix", reason="needs the installed marlander script on POSIX"
+)
+
+
+def interrupted_run(args: list[str], delay_s: float) -> subprocess.CompletedProcess:
+    """Run ``args``, send SIGINT after ``delay_s`` (unless it has finished), and wait for it."""
+    proc = subprocess.Popen(
+        args,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        # a test run in the background may have SIGINT ignored, and children inherit that: restore the default
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+    time.sleep(delay_s)
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=60)
+    return subprocess.CompletedProcess(args, proc.returncode, out, err)
+
+
+def test_ctrl_c_while_marlander_starts_up_prints_one_line_and_exits_130():
+    codes = []
+    for delay_s in (0.3, 0.8, 1.3):  # early, during torch, later in the imports
+        run = interrupted_run([str(MARLANDER), "--help"], delay_s)
+        assert "Traceback" not in run.stderr, run.stderr
+        if run.returncode == 0:  # it had finished already: a clean exit
+            assert "usage: marlander" in run.stdout
+        else:
+            assert run.returncode == 130, (run.returncode, run.stderr)
+            assert run.stderr.strip() == "Interrupted.", run.stderr
+        codes.append(run.returncode)
+    assert 130 in codes, codes  # at least one Ctrl-C landed in the start-up
+
+
+def test_a_library_user_still_gets_the_keyboard_interrupt():
+    # any other program that imports marlander_lite sees the KeyboardInterrupt as usual (not a silent exit)
+    code = "import marlander_lite"
+    run = interrupted_run([sys.executable, "-c", code], 0.3)
+    if run.returncode != 0:
+        assert "KeyboardInterrupt" in run.stderr, run.stderr
+        assert run.returncode in (-signal.SIGINT, 128 + signal.SIGINT, 1), run.returncode
+
+
+def test_importing_the_package_still_registers_the_gym_ids():
+    import gymnasium as gym
+
+    import marlander_lite
+
+    env = gym.make(marlander_lite.ENV_IDS["pointmass"])
+    try:
+        obs, _ = env.reset(seed=0)
+        assert obs is not None
+    finally:
+        env.close()

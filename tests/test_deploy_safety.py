@@ -1,0 +1,151 @@
+"""Safety rules: the geofence margin follows from braking physics, and a runaway drone stops inside the hard fence.
+
+Defect 2: with ``limits.max_speed`` 2 or 3 m/s and the example's 0.3 m margin, a drone running
+away at full speed ended 0.3-0.8 m outside the hard fence. The margin must hold the stopping
+distance ``1.25 (v (t_lat + t_resp) + v^2 / (2 a_fw))`` from ``v = 1.1 max_speed`` (the firmware
+tracker's overshoot, response delay and deceleration, measured in PyBullet); the loader refuses a
+config whose margin does not, and the runtime fence brakes as soon as a drone's stopping point (at
+its measured speed) leaves the hard box.
+"""
+
+import dataclasses
+import math
+import re
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from marlander_lite.deploy.config import EXAMPLE_CONFIG, GeofenceConfig, LabConfig, SimulationConfig, load_lab_config
+from marlander_lite.deploy.faults import FaultSpec
+from marlander_lite.deploy.rehearsal import rehearse
+from marlander_lite.deploy.safety import (
+    BRAKE_DECELERATION,
+    FIRMWARE_BRAKE_DECELERATION,
+    SPEED_OVERSHOOT,
+    TILT_LIMIT_DECELERATION,
+    TRACKER_RESPONSE_DELAY_S,
+    SafetyMonitor,
+    fastest_speed_for,
+    required_margin,
+    stopping_distance,
+)
+from marlander_lite.deploy.schema import ConfigError
+
+try:
+    import marlander_lite.crazyflie.simulator  # noqa: F401
+
+    SIMULATORS = ["pointmass", "pybullet"]
+except ImportError:  # the PyBullet swarm is not part of this checkout
+    SIMULATORS = ["pointmass"]
+
+
+def test_margin_formula_and_numbers():
+    # the firmware brakes more gently than its tilt limit would allow, later, from an overshoot of the command
+    assert TILT_LIMIT_DECELERATION == pytest.approx(9.81 * math.tan(math.radians(20)), rel=1e-9)
+    assert BRAKE_DECELERATION == FIRMWARE_BRAKE_DECELERATION == pytest.approx(2.4)
+    assert BRAKE_DECELERATION < TILT_LIMIT_DECELERATION
+    assert (SPEED_OVERSHOOT, TRACKER_RESPONSE_DELAY_S) == (pytest.approx(1.1), pytest.approx(0.15))
+    t = 0.030 + 1 / 48 + 0.15  # mocap + radio, one period of the 48 Hz loop, the tracker's response delay
+    for v, expected in ((0.5, 0.217), (1.0, 0.591), (1.5, 1.123), (2.0, 1.813), (3.0, 3.664)):
+        w = 1.1 * v
+        assert required_margin(v, 48.0) == pytest.approx(1.25 * (w * t + w**2 / (2 * 2.4)))
+        assert required_margin(v, 48.0) == pytest.approx(expected, abs=1e-3)
+        assert fastest_speed_for(required_margin(v, 48.0), 48.0) == pytest.approx(v)
+    # the runtime rule: measured speeds already contain the overshoot
+    d2 = 1.25 * (2.0 * t + 4.0 / 4.8)
+    assert stopping_distance(np.array([-2.0, 0.0, 2.0]), 48.0) == pytest.approx([d2, 0.0, d2], abs=1e-9)
+
+
+def fast_lab(max_speed: float, simulator: str) -> LabConfig:
+    """The example lab at ``max_speed``, its fence widened to hold the braking margin (1.7 m of soft box kept)."""
+    base = load_lab_config(EXAMPLE_CONFIG)
+    margin = math.ceil(required_margin(max_speed, base.rates.loop_hz) * 100) / 100
+    half = 1.7 + margin
+    fence = GeofenceConfig(x=(-half, half), y=(-half, half), z=(0.0, 1.7 + margin), margin=margin)
+    return base.replace(
+        limits=dataclasses.replace(base.limits, max_speed=max_speed),
+        geofence=fence,
+        simulation=SimulationConfig(simulator=simulator, max_time_s=30.0),
+    )
+
+
+def test_a_margin_too_narrow_for_the_speed_is_refused():
+    base = load_lab_config(EXAMPLE_CONFIG)
+    message = r"needs 3.67 m .* lower limits.max_speed to 1.00 m/s .* geofence.margin >= 3.67 m"
+    with pytest.raises(ConfigError, match=message):
+        base.replace(limits=dataclasses.replace(base.limits, max_speed=3.0))
+    assert fast_lab(3.0, "pointmass").geofence.margin == pytest.approx(3.67)
+
+
+@pytest.mark.parametrize("max_speed", [0.5, 1.3, 2.0, 2.7, 3.0])
+@pytest.mark.parametrize("margin", [0.1, 0.3, 0.6])
+def test_both_fixes_the_refusal_names_are_accepted(max_speed, margin):
+    base = load_lab_config(EXAMPLE_CONFIG)
+    half = 1.0 + 4.0  # room for any margin up to its 4 m limit
+    fence = GeofenceConfig(x=(-half, half), y=(-half, half), z=(0.0, half), margin=margin)
+    try:
+        base.replace(limits=dataclasses.replace(base.limits, max_speed=max_speed), geofence=fence)
+        return  # fits already
+    except ConfigError as error:
+        message = str(error)
+    slower = float(re.search(r"lower limits.max_speed to ([0-9.]+) m/s", message).group(1))
+    wider = float(re.search(r"geofence.margin >= ([0-9.]+) m", message).group(1))
+    base.replace(limits=dataclasses.replace(base.limits, max_speed=slower), geofence=fence)
+    base.replace(
+        limits=dataclasses.replace(base.limits, max_speed=max_speed), geofence=dataclasses.replace(fence, margin=wider)
+    )
+
+
+@pytest.fixture(scope="module")
+def policy_path(p_controller_policy) -> Path:
+    """The linear P-controller of conftest.py: it would land; a fault replaces one drone's action."""
+    return p_controller_policy
+
+
+@pytest.mark.parametrize("simulator", SIMULATORS)
+@pytest.mark.parametrize("max_speed", [2.0, 3.0])
+def test_a_runaway_drone_stops_inside_the_hard_fence(max_speed, simulator, policy_path):
+    lab = fast_lab(max_speed, simulator)
+    for seed in range(3):  # three start layouts: the runaway heads for different walls
+        result = rehearse(lab, policy_path, fault=FaultSpec("geofence-breach"), seed=seed)
+        kinds = [e.kind for e in result.mission.events]
+        assert "geofence_breach" in kinds, result.summary()
+        assert result.safe and result.inside_fence.all(), result.summary()
+        low, high = lab.geofence.bounds()
+        assert (result.final_positions[:, :2] > np.array(low[:2])).all()
+        assert (result.final_positions[:, :2] < np.array(high[:2])).all()
+
+
+def estimate(pos, vel) -> SimpleNamespace:
+    pos, vel = np.atleast_2d(pos).astype(float), np.atleast_2d(vel).astype(float)
+    n = len(pos)
+    return SimpleNamespace(pos=pos, vel=vel, age=np.zeros(n), invalid=np.zeros(n, dtype=bool))
+
+
+def test_the_runtime_fence_brakes_when_the_stopping_point_reaches_the_hard_fence():
+    lab = fast_lab(2.0, "pointmass")  # hard x = 3.52, soft x = 1.7, margin 1.82
+    flying = np.array([True])
+    lab = lab.replace(drones=lab.drones[:1], simulation=SimulationConfig(simulator="pointmass"))
+    # inside the soft box at 1 m/s towards the wall: stops after 0.51 m, well inside
+    assert SafetyMonitor(lab).flight(1.0, estimate([1.5, 0, 1], [1.0, 0, 0]), flying, True).action == "fly"
+    # inside the soft box, but at 4 m/s (a gust, or a speed overshoot) it needs 5.2 m: brake now
+    verdict = SafetyMonitor(lab).flight(1.0, estimate([1.5, 0, 1], [4.0, 0, 0]), flying, True)
+    assert verdict.action == "hover" and verdict.events[0].kind == "geofence_breach"
+    assert "could not stop inside the hard fence" in verdict.events[0].message
+    # moving away from the wall (stopping 1.5 m further, far from the other one), or down towards the floor
+    # (a landing), is no breach
+    assert SafetyMonitor(lab).flight(1.0, estimate([1.5, 0, 1], [-2.0, 0, 0]), flying, True).action == "fly"
+    assert SafetyMonitor(lab).flight(1.0, estimate([0, 0, 0.3], [0, 0, -2.0]), flying, True).action == "fly"
+    # NaN velocity: staleness rules handle it, not the fence
+    assert SafetyMonitor(lab).flight(1.0, estimate([0, 0, 1], [np.nan] * 3), flying, True).action == "fly"
+    # the old rule still holds: outside the soft box is a breach
+    assert SafetyMonitor(lab).flight(1.0, estimate([1.8, 0, 1], [0, 0, 0]), flying, True).action == "hover"
+
+
+def test_the_takeoff_height_check_matches_arming():
+    base = load_lab_config(EXAMPLE_CONFIG)
+    assert base.replace(limits=dataclasses.replace(base.limits, takeoff_height=0.3)).limits.takeoff_height == 0.3
+    with pytest.raises(ConfigError, match="arming always refuses"):
+        base.replace(limits=dataclasses.replace(base.limits, takeoff_height=0.29))

@@ -1,0 +1,175 @@
+"""The documentation site builds, every notebook page shows its figures, and no internal link is broken.
+
+Builds the site as README's "Documentation" section says (``MARLANDER_BUDGET=small mkdocs build``,
+notebooks executed by mkdocs-jupyter), then opens the notebook pages in headless Chromium: a small
+harness page loads each one in a frame and reports how many of its output images the browser
+decoded. Links are checked on the built HTML: every ``href`` and ``src`` that stays inside the
+site must name a file that exists. Chromium is Debian's ``chromium`` package (``.ci/run`` installs
+it when it can); without it the figure check is skipped, the link check still runs.
+
+One test function builds once and checks everything, so that ``pytest -n 2`` never builds twice.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+from html.parser import HTMLParser
+from pathlib import Path
+from urllib.parse import unquote, urlsplit
+
+import nbformat
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+NOTEBOOKS = sorted((ROOT / "notebooks").glob("*.ipynb"))
+BUILD_TIMEOUT_S = 1800
+CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome")
+
+
+def find_chromium() -> str | None:
+    """The first headless-capable Chromium on ``PATH``, or ``None``."""
+    return next((path for name in CHROMIUM_NAMES if (path := shutil.which(name))), None)
+
+
+def plotting_notebooks() -> list[str]:
+    """Notebooks whose code makes figures (matplotlib or the library's plotting helpers)."""
+    pattern = re.compile(r"\bplt\.|\bplot_\w+\(|\bfigures\.")
+    return [
+        nb_path.stem
+        for nb_path in NOTEBOOKS
+        if any(
+            cell.cell_type == "code" and pattern.search(cell.source)
+            for cell in nbformat.read(nb_path, as_version=4).cells
+        )
+    ]
+
+
+class _Links(HTMLParser):
+    def __init__(self) -> None:
+        super().__init__()
+        self.links: list[str] = []
+
+    def handle_starttag(self, tag: str, attrs: list[tuple[str, str | None]]) -> None:
+        for name, value in attrs:
+            if name in ("href", "src") and value:
+                self.links.append(value)
+
+
+def broken_links(site: Path) -> list[str]:
+    """``"page -> link"`` for every relative link of every built page whose target file is missing."""
+    broken = []
+    for page in sorted(site.rglob("*.html")):
+        if page.name == "404.html" and page.parent == site:
+            continue  # served for any missing URL, so mkdocs writes its links from the server root
+        parser = _Links()
+        parser.feed(page.read_text(encoding="utf-8"))
+        for link in parser.links:
+            parts = urlsplit(link)
+            if parts.scheme or parts.netloc or not parts.path:  # external, data:, mailto:, "#anchor"
+                continue
+            base = site if parts.path.startswith("/") else page.parent
+            target = (base / unquote(parts.path).lstrip("/")).resolve()
+            if target.is_dir():
+                target = target / "index.html"
+            if not target.is_relative_to(site.resolve()) or not target.is_file():
+                broken.append(f"{page.relative_to(site)} -> {link}")
+    return broken
+
+
+HARNESS = """<!doctype html><html><body><pre id="result">pending</pre><script>
+const frame = document.createElement("iframe");
+frame.style.width = "1280px";
+frame.style.height = "2000px";
+let started = false;
+function check() {
+  // The page's own document is enough: waiting for "load" would also wait for external fonts and scripts.
+  const doc = frame.contentDocument;
+  if (started || !doc || doc.readyState === "loading" || doc.URL === "about:blank") return;
+  started = true;
+  const images = [...doc.querySelectorAll("img")].filter((img) => img.src.startsWith("data:image/"));
+  Promise.all(images.map((img) => img.decode().then(() => img.naturalWidth).catch(() => 0))).then((widths) => {
+    const decoded = widths.filter((w) => w > 0).length;
+    document.getElementById("result").textContent = JSON.stringify({images: images.length, decoded});
+  });
+}
+frame.onload = check;
+setInterval(check, 100);
+frame.src = %s;
+document.body.appendChild(frame);
+</script></body></html>
+"""
+
+
+def rendered_images(chromium: str, page: Path) -> dict[str, int]:
+    """Output images (``data:`` URIs) of a built page, and how many Chromium decoded to a width > 0."""
+    harness = page.parent / "_image_check.html"
+    harness.write_text(HARNESS % json.dumps(page.as_uri()), encoding="utf-8")
+    command = [
+        chromium,
+        "--headless",
+        "--no-sandbox",  # CI runs as root
+        "--disable-gpu",
+        "--allow-file-access-from-files",  # the harness reads the frame's document
+        "--host-resolver-rules=MAP * ~NOTFOUND",  # no network: external fonts and scripts fail at once
+        "--virtual-time-budget=30000",  # run the page's scripts and decode its images, then dump the DOM
+        "--dump-dom",
+        harness.as_uri(),
+    ]
+    try:
+        dom = subprocess.run(command, capture_output=True, text=True, timeout=180, check=True).stdout
+    finally:
+        harness.unlink()
+    match = re.search(r'<pre id="result">(.*?)</pre>', dom, re.DOTALL)
+    assert match and match[1] != "pending", f"the image check of {page} did not finish:\n{dom[-2000:]}"
+    return json.loads(match[1])
+
+
+def test_the_link_check_finds_a_broken_link(tmp_path):
+    (tmp_path / "a").mkdir()
+    (tmp_path / "a" / "index.html").write_text(
+        '<a href="../b/">b</a> <img src="../img.png"> <a href="https://example.org">x</a> <a href="#top">t</a>'
+    )
+    (tmp_path / "b").mkdir()
+    (tmp_path / "b" / "index.html").write_text('<a href="../a/index.html#x">a</a> <a href="/b/">b</a>')
+    assert broken_links(tmp_path) == ["a/index.html -> ../img.png"]
+
+
+@pytest.mark.slow
+@pytest.mark.notebooks
+def test_site_builds_shows_every_figure_and_has_no_broken_link(tmp_path):
+    pytest.importorskip("mkdocs_jupyter", reason="the docs extra is not installed (pip install -r environment.lock)")
+    site = tmp_path / "site"
+    env = {**os.environ, "MARLANDER_BUDGET": "small", "MARLANDER_DOCS_EXECUTE": "true"}
+    build = subprocess.run(
+        [sys.executable, "-m", "mkdocs", "build", "--strict", "-f", str(ROOT / "mkdocs.yml"), "-d", str(site)],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=BUILD_TIMEOUT_S,
+    )
+    assert build.returncode == 0, f"mkdocs build failed:\n{build.stdout[-3000:]}\n{build.stderr[-6000:]}"
+
+    pages = {nb_path.stem: site / "notebooks" / nb_path.stem / "index.html" for nb_path in NOTEBOOKS}
+    assert all(page.is_file() for page in pages.values()), "a notebook has no page"
+    for name in ("index", "paper_to_code/index", "reproduction/index", "lab_guide/index", "references/index"):
+        assert (site / f"{name}.html").is_file(), f"{name}.html is missing"
+    assert "marlander_lite" in (site / "index.html").read_text(encoding="utf-8")  # the README is the home page
+
+    assert broken_links(site) == []
+
+    chromium = find_chromium()
+    if chromium is None:
+        pytest.skip("chromium is not installed (apt-get install chromium): the figure check needs a browser")
+    plotting = plotting_notebooks()
+    assert plotting, "no notebook plots anything: the figure check would prove nothing"
+    rendered = {name: rendered_images(chromium, page) for name, page in pages.items()}
+    missing = [f"{name}: {rendered[name]}" for name in plotting if rendered[name]["decoded"] == 0]
+    undecoded = [f"{name}: {r}" for name, r in rendered.items() if r["decoded"] < r["images"]]
+    assert not missing, f"notebook pages without a rendered figure: {missing}"
+    assert not undecoded, f"images the browser could not decode: {undecoded}"

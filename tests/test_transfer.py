@@ -1,0 +1,204 @@
+"""Robust training (DynamicsFamily, training aids) and the transfer matrix."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from marlander_lite import task, training_aids
+from marlander_lite.cli import main
+from marlander_lite.platforms import PlatformConfig
+from marlander_lite.pointmass.family import NOMINAL, DynamicsFamily
+from marlander_lite.pointmass.simulator import GRAVITY, PointMassParams, PointMassSwarm
+from marlander_lite.task import TaskConfig
+
+POLICY = "data/policies/quick-cpu.safetensors"
+
+
+# ----------------------------------------------------------------------------- the family
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"latency_s": (-0.01, 0.06)}, "latency cannot be negative"),
+        ({"max_tilt_deg": (30.0, 20.0)}, "empty range"),
+        ({"mass_scale": (0.0, 1.0)}, "allowed interval"),
+        ({"drag": (0.0, float("nan"))}, "finite"),
+        ({"drag": 0.3}, r"\(low, high\) pair"),
+    ],
+)
+def test_family_rejects_bad_ranges(changes: dict, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        DynamicsFamily(**changes)
+
+
+def test_family_rejects_unknown_fields_and_lists_the_allowed_ones() -> None:
+    with pytest.raises(TypeError, match="allowed"):
+        DynamicsFamily.from_mapping({"wind": (0, 1)})
+
+
+def test_family_draws_stay_in_their_ranges_and_are_seeded() -> None:
+    family = DynamicsFamily()
+    draw = family.sample(np.random.default_rng(3), (500, 2))
+    for name, (low, high) in family.to_dict().items():
+        assert draw[name].shape == (500, 2)
+        assert low <= draw[name].min() and draw[name].max() <= high
+        assert draw[name].max() - draw[name].min() > 0.8 * (high - low)  # the whole range is used
+    again = family.sample(np.random.default_rng(3), (500, 2))
+    assert all(np.array_equal(draw[k], again[k]) for k in draw)
+
+
+def _swarm(family: DynamicsFamily, num_envs: int = 4) -> PointMassSwarm:
+    cfg = TaskConfig(num_drones=2)
+    return PointMassSwarm(cfg, PlatformConfig(kind="static-floor"), num_envs, PointMassParams(family=family))
+
+
+def test_each_drone_of_each_env_draws_its_own_dynamics_at_reset() -> None:
+    swarm = _swarm(DynamicsFamily(), num_envs=8)
+    swarm.reset(np.arange(8), np.random.default_rng(0))
+    tilt = np.degrees(np.arctan(swarm._tan_tilt))
+    assert tilt.shape == (8, 2) and np.unique(tilt.round(6)).size == 16
+    assert 15.0 <= tilt.min() and tilt.max() <= 35.0
+
+
+def test_latency_delays_the_response_by_whole_policy_periods() -> None:
+    """With a latency of one policy period, the first step flies the previous (zero) command: hover."""
+    dt = TaskConfig().dt
+    late = _swarm(DynamicsFamily.fixed(latency_s=dt), num_envs=1)
+    prompt = _swarm(DynamicsFamily.fixed(), num_envs=1)
+    for swarm in (late, prompt):
+        swarm.reset(np.arange(1), np.random.default_rng(1))
+    command = np.zeros((1, 2, 3))
+    command[..., 0] = 1.0
+    late.step(command)
+    prompt.step(command)
+    assert abs(late.vel[0, 0, 0]) < 1e-9 < prompt.vel[0, 0, 0]
+    late.step(command)  # now the command of one period ago, the same as the prompt drone's first
+    assert late.vel[0, 0, 0] > 0.0
+
+
+def test_a_heavier_drone_sinks_when_the_tracker_assumes_the_nominal_mass() -> None:
+    """A velocity loop without integral action settles where its correction makes up the missing lift."""
+    tau_z, mass = 0.05, 1.15
+    swarm = _swarm(DynamicsFamily.fixed(mass_scale=mass, vertical_time_constant=tau_z), num_envs=1)
+    swarm.reset(np.arange(1), np.random.default_rng(2))
+    for _ in range(48):
+        swarm.step(np.zeros((1, 2, 3)))
+    # Force balance: m_nominal (g + (0 - v) / tau) = m g  ->  v = -tau g (m - 1).
+    assert swarm.vel[0, :, 2] == pytest.approx(-tau_z * GRAVITY * (mass - 1.0), rel=0.05)
+
+
+def test_the_default_point_mass_is_unchanged_by_the_family_code() -> None:
+    """Without a family the simulator keeps its fixed model: same numbers as the nominal family member."""
+    fixed = PointMassSwarm(TaskConfig(), PlatformConfig(kind="static-floor"), 2)
+    member = _swarm(DynamicsFamily.fixed(), num_envs=2)
+    rng_a, rng_b = np.random.default_rng(5), np.random.default_rng(5)
+    fixed.reset(np.arange(2), rng_a)
+    member.reset(np.arange(2), rng_b)
+    member.pos[...] = fixed.pos  # the family draw used the generator first
+    commands = np.random.default_rng(6).uniform(-3, 3, (30, 2, 2, 3))
+    for command in commands:
+        fixed.step(command)
+        member.step(command)
+    np.testing.assert_allclose(member.vel, fixed.vel, atol=1e-12)
+    assert NOMINAL["max_tilt_deg"] == PointMassParams().max_tilt_deg
+
+
+def test_family_and_legacy_randomization_do_not_mix() -> None:
+    with pytest.raises(ValueError, match="not both"):
+        PointMassParams(randomization=0.3, family=DynamicsFamily())
+
+
+# ----------------------------------------------------------------------------- training aids
+
+
+def test_training_aid_penalties_worked_by_hand() -> None:
+    cfg = TaskConfig(
+        approach_cone_penalty=1.0,
+        approach_cone_slope=1.0,
+        approach_cone_height=0.6,
+        command_speed_penalty=0.5,
+        braking_deceleration=2.0,
+        final_approach_speed=0.3,
+        command_error_penalty=0.2,
+        command_error_free=0.6,
+    )
+    rel_pos = np.array([[[0.4, 0.3, 0.1]]])  # 0.5 m away horizontally, 0.1 m above the goal
+    command = np.array([[[0.0, 0.0, -2.0]]])
+    vel = np.array([[[0.0, 0.0, -0.5]]])
+    pad_vel = np.zeros((1, 1, 3))
+    cone = 1.0 * (0.5 - 0.1)
+    distance = np.sqrt(0.4**2 + 0.3**2 + 0.1**2)
+    braking = 0.5 * (2.0 - np.sqrt(0.3**2 + 2 * 2.0 * distance))
+    following = 0.2 * (1.5 - 0.6)
+    got = training_aids.training_aid_penalty(command, rel_pos, vel, pad_vel, cfg)
+    assert got[0, 0] == pytest.approx(cone + braking + following)
+
+
+def test_evaluation_switches_every_training_aid_off() -> None:
+    from marlander_lite.training.presets import TRAINING_AIDS
+
+    assert set(TRAINING_AIDS) <= set(training_aids.TRAINING_AIDS_OFF)
+    evaluated = TaskConfig(**TRAINING_AIDS).replace(**training_aids.TRAINING_AIDS_OFF)
+    assert evaluated == TaskConfig()
+    assert not training_aids.uses_training_penalties(evaluated)
+
+
+def test_training_touchdown_speed_is_a_stricter_landing() -> None:
+    cfg = TaskConfig(training_touchdown_speed=0.3)
+    contact = np.array([[task.CONTACT_OWN_PAD]])
+    landed, crashed = task.touchdown_outcome(
+        contact, np.zeros((1, 1)), np.array([[0.4]]), np.zeros((1, 1), bool), 0.1, cfg
+    )
+    assert not landed[0, 0] and crashed[0, 0]
+    landed, _ = task.touchdown_outcome(
+        contact, np.zeros((1, 1)), np.array([[0.4]]), np.zeros((1, 1), bool), 0.1, TaskConfig()
+    )
+    assert landed[0, 0]
+
+
+# ----------------------------------------------------------------------------- the transfer matrix
+
+
+@pytest.mark.slow
+def test_transfer_command_writes_a_well_formed_matrix(tmp_path, capsys) -> None:
+    out = tmp_path / "t"
+    args = [
+        "transfer", POLICY, "--episodes", "2", "--rows", "floor,arc 0.2-0.5 m/s",
+        "--columns", "point mass,PyBullet PID,PyBullet firmware,firmware latency 60 ms", "--workers", "1",
+        "--out", str(out),
+    ]  # fmt: skip
+    assert main(args) == 0
+    printed = capsys.readouterr().out
+    assert "| floor |" in printed and "PyBullet firmware" in printed
+    rows = list(csv.DictReader((out / "transfer.csv").open()))
+    assert len(rows) == 2 * 4
+    for row in rows:
+        assert int(row["episodes"]) == 2
+        rate = float(row["success_rate"])
+        assert 0.0 <= float(row["wilson_low"]) <= rate <= float(row["wilson_high"]) <= 1.0
+    data = json.loads((out / "transfer.json").read_text())
+    assert len(data["policy_sha256"]) == 64 and len(data["cells"]) == 8
+    # The files are kept unless --force.
+    with pytest.raises(SystemExit):
+        main(args)
+    assert main([*args, "--force"]) == 0
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--columns", "PyBullet warp"], "unknown column"),
+        (["--rows", "ceiling"], "unknown row"),
+        (["--episodes", "0"], "--episodes"),
+    ],
+)
+def test_transfer_command_rejects_bad_input(extra: list[str], message: str, tmp_path, capsys) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        main(["transfer", POLICY, "--out", str(tmp_path / "t"), *extra])
+    assert exit_info.value.code != 0
+    assert message in capsys.readouterr().err
