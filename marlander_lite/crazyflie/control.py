@@ -77,14 +77,21 @@ class PIDGains:
     to about ``g tan(max_tilt)``."""
 
     def __post_init__(self) -> None:
-        for name, value in vars(self).items():
-            values = value if isinstance(value, tuple) else (value,)
-            if len(values) not in (1, 3) or not all(np.isfinite(v) and v >= 0 for v in values):
-                raise ValueError(f"PIDGains.{name} must be finite and >= 0 (three per-axis values), got {value!r}.")
+        check_gains(self)
         if min(self.att_d) <= 0 or self.max_body_rate <= 0:
             raise ValueError("att_d and max_body_rate must be > 0 (the attitude law divides by att_d).")
         if not 0 < self.max_tilt_deg < 90:
             raise ValueError(f"max_tilt_deg must be in (0, 90) degrees, got {self.max_tilt_deg!r}.")
+
+
+def check_gains(gains: object) -> None:
+    """Raise a ``ValueError`` unless every field of a gains dataclass is finite and >= 0 (one value or three)."""
+    for name, value in vars(gains).items():
+        values = value if isinstance(value, tuple) else (value,)
+        if len(values) not in (1, 3) or not all(math.isfinite(v) and v >= 0 for v in values):
+            raise ValueError(
+                f"{type(gains).__name__}.{name} must be finite and >= 0 (three per-axis values), got {value!r}."
+            )
 
 
 def mixer_matrix(params: CF2XParams) -> np.ndarray:

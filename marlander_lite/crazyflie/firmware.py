@@ -64,7 +64,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from marlander_lite.crazyflie.control import Rotation, mixer_matrix
+from marlander_lite.crazyflie.control import Rotation, check_gains, mixer_matrix
 from marlander_lite.crazyflie.params import CF2XParams
 
 Triple = tuple[float, float, float]
@@ -122,10 +122,7 @@ class FirmwareGains:
     (the firmware's default). See the module docstring for why it is on here."""
 
     def __post_init__(self) -> None:
-        for name, value in vars(self).items():
-            values = value if isinstance(value, tuple) else (value,)
-            if len(values) not in (1, 3) or not all(math.isfinite(v) and v >= 0 for v in values):
-                raise ValueError(f"FirmwareGains.{name} must be finite and >= 0 (three per-axis values), got {value!r}")
+        check_gains(self)
         if self.velocity_hz <= 0 or self.tilt_limit_deg <= 0 or self.tilt_limit_deg >= 90:
             raise ValueError("velocity_hz must be > 0 and tilt_limit_deg in (0, 90).")
 
