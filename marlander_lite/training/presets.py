@@ -35,8 +35,8 @@ class TrainConfig:
     platform_height: tuple[float, float] | None = None
     """Plate top height range for UR10-held kinds (m); None keeps 0.5-1.0; (0.005, 1.0) covers the floor too."""
     sensing: str = "perfect"
-    """``perfect``, ``vicon`` (motion-capture noise and latency on observations) or ``noisy`` (vicon with ten times
-    the attitude and body-rate noise, a training aid; :meth:`~marlander_lite.sensing.SensingConfig.noisy`)."""
+    """``perfect``, ``vicon`` (motion-capture noise and latency on observations) or ``noisy`` (vicon with far more
+    attitude and body-rate noise, a training aid; :meth:`~marlander_lite.sensing.SensingConfig.noisy`)."""
     task: dict[str, Any] = field(default_factory=dict)
     """Overrides of :class:`~marlander_lite.task.TaskConfig` fields."""
     dynamics: dict[str, Any] = field(default_factory=dict)
@@ -195,7 +195,6 @@ _MOVING_PLATFORMS = {"platform": "moving-arc", "platform_speed": (0.0, 0.6), "pl
 PRESETS: dict[str, TrainConfig] = {
     "quick-cpu": _QUICK,
     "paper": _QUICK.replace(
-        **_MOVING_PLATFORMS,
         torch_threads=2,
         total_steps=20_000_000,
         net_arch=PAPER_NET,
@@ -223,7 +222,7 @@ FINETUNE_PRESETS = ("crazyflie-finetune", "moving-crazyflie-finetune")
 """Presets that continue a trained run (``--init-from RUN``) rather than start from scratch."""
 
 PRESET_NOTES: dict[str, str] = {
-    "quick-cpu": "2 drones, floor pad, point mass, 128-128 ReLU, 4 M steps: lands in minutes on a 2-core laptop.",
+    "quick-cpu": "2 drones, floor pad, point mass with a dynamics family, 128-128 ReLU, 8 M steps: minutes on 2 cores.",
     "paper": "the paper's 512-512-256-128 ReLU policy, 20 M steps, point mass (about 45 min on 2 cores).",
     "crazyflie-finetune": "continue a quick-cpu/paper run in the PyBullet Crazyflie swarm, 3 M steps (~30 min).",
     "moving": "beyond the paper: also observes the platform velocity; UR10 arcs at 0-0.6 m/s, floor to 1 m high.",
