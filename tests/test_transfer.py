@@ -202,3 +202,15 @@ def test_transfer_command_rejects_bad_input(extra: list[str], message: str, tmp_
         main(["transfer", POLICY, "--out", str(tmp_path / "t"), *extra])
     assert exit_info.value.code != 0
     assert message in capsys.readouterr().err
+
+
+def test_action_change_penalty_worked_by_hand_and_needs_the_previous_commands() -> None:
+    """Off in every preset (it penalised the exploration noise and no run learnt to land), kept because the shipped
+    robust policies' contracts name it; its cost is ``action_change_penalty * |u_t - u_{t-1}|``."""
+    cfg = TaskConfig(action_change_penalty=0.1)
+    zeros = np.zeros((1, 1, 3))
+    command, previous = np.array([[[0.3, 0.0, -0.4]]]), np.array([[[0.0, 0.0, 0.0]]])
+    got = training_aids.training_aid_penalty(command, zeros, zeros, zeros, cfg, previous)
+    assert got[0, 0] == pytest.approx(0.1 * 0.5)
+    with pytest.raises(ValueError, match="previous commands"):
+        training_aids.training_aid_penalty(command, zeros, zeros, zeros, cfg)

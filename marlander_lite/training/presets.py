@@ -162,8 +162,8 @@ TRAINING_AIDS = {
 episodes start near the pads; a landing counts only within 3 cm of the pad centre and below 0.3 m/s; drones lose
 reward for flying below their approach cone, for commanding speeds they cannot brake from before the pad, and for
 commands far from their velocity. Evaluation switches every aid off (``training_aids.TRAINING_AIDS_OFF``). The
-smoothness aid ``action_change_penalty`` is not used: it penalises the exploration noise itself, and no run with it
-learnt to land."""
+smoothness aid ``action_change_penalty`` is not used: it penalises the exploration noise itself, and neither 8 M-step
+run with it learnt to land."""
 
 ROBUST_DYNAMICS: dict[str, Any] = {"family": DynamicsFamily().to_dict()}
 """Each drone draws its velocity-tracker dynamics at every reset from the default
