@@ -8,9 +8,8 @@ of the same size. Target: at least 5 million drone-steps/s with 4096 envs x 2 dr
 Each figure is the median of ``--repeats`` timed runs measured in this one process; the machine
 may be shared, so compare numbers from one run with each other, not across runs.
 
-Observations come back as an ``(num_envs, 13 N)`` float32 array whose memory is Fortran-ordered
-(the env index varies fastest), the layout the simulator computes in; the ``+C copy`` column adds
-``np.ascontiguousarray`` for consumers that need row-major memory.
+Observations come back as a row-major ``(num_envs, 13 N)`` float32 array (the simulator computes in Fortran
+order internally and converts once); the ``+C copy`` column adds ``np.ascontiguousarray``, which is now free.
 
     python benchmarks/bench_pointmass.py [--repeats 5] [--steps-scale 1.0]
 """

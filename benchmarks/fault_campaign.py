@@ -1,7 +1,7 @@
 """Fault campaign: every documented fault on every kind of platform, many seeds, at the fastest allowed speed.
 
 A rehearsal shows that one fault ends safely once; a campaign shows that it does so however the
-dice fall. For every fault of :mod:`marlander_lite.deploy.faults` (and a SIGTERM sent to this very
+dice fall. For every fault of :mod:`marlander_lite.deploy.rehearsal.faults` (and a SIGTERM sent to this very
 process in the middle of the flight), on each platform the paper flies (the floor, the UR10 holding
 the plate still, the UR10 moving it along an arc), for ``--seeds`` seeds (the seed moves the drones'
 start positions, the platform, the sensor noise and the moment the fault strikes), it rehearses the
@@ -22,7 +22,7 @@ duplicate ticks     tick indices logged more than once
 logs without summary a flight log not closed by its summary record
 ==================  ===================================================================
 
-Every total must be 0. Run: ``python benchmarks/fault_campaign.py [--seeds N] [--simulator pybullet]``
+Every total must be 0. Run: ``python benchmarks/fault_campaign.py [--seeds N] [--simulator crazyflie]``
 (exit status 1 if any total is not 0). ``tests/test_deploy_campaign.py`` runs it in-process with 5 seeds.
 """
 
@@ -41,10 +41,9 @@ from pathlib import Path
 
 import numpy as np
 
-from marlander_lite.deploy.config import EXAMPLE_CONFIG, LabConfig, load_lab_config
-from marlander_lite.deploy.faults import FAULT_KINDS, FaultSpec
+from marlander_lite.deploy.config import EXAMPLE_CONFIG, SIMULATOR_KINDS, LabConfig, load_lab_config
 from marlander_lite.deploy.flight_log import read_flight_log
-from marlander_lite.deploy.rehearsal import RehearsalResult, rehearse
+from marlander_lite.deploy.rehearsal import FAULT_KINDS, FaultSpec, RehearsalResult, rehearse
 from marlander_lite.policy_file import load_policy
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -167,7 +166,7 @@ class Campaign:
 def run_campaign(
     seeds: Iterable[int],
     *,
-    simulator: str = "pybullet",
+    simulator: str = "crazyflie",
     max_time_s: float = 12.0,
     cases: Iterable[str] = CASES,
     platforms: dict[str, str] = PLATFORMS,
@@ -213,7 +212,7 @@ def run_campaign(
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--seeds", type=int, default=20, help="seeds per fault and platform (default 20)")
-    parser.add_argument("--simulator", choices=("pybullet", "pointmass"), default="pybullet")
+    parser.add_argument("--simulator", choices=SIMULATOR_KINDS, default="crazyflie")
     parser.add_argument("--max-time", type=float, default=12.0, help="simulated seconds per rehearsal (default 12)")
     args = parser.parse_args(argv)
     lab = campaign_lab("static-floor", args.max_time)

@@ -1,7 +1,8 @@
 """marlander_lite: the MARLander swarm-landing paper as a small, readable library.
 
-Importing the package registers the gymnasium ids ``marlander_lite/PointMassLanding-v0`` and
-``marlander_lite/CrazyflieLanding-v0``.
+Importing the package registers the gymnasium ids of every simulator in
+:mod:`marlander_lite.simulators` (``marlander_lite/PointMassLanding-v0`` and
+``marlander_lite/CrazyflieLanding-v0``).
 
 Importing it also imports gymnasium, pettingzoo and Stable-Baselines3 (torch): about 2 s. The
 ``marlander`` command imports it before :func:`marlander_lite.cli.main` can catch anything, so a
@@ -28,11 +29,11 @@ def _started_as_command() -> bool:
 
 
 try:
-    from gymnasium.envs.registration import register, registry
-
+    from marlander_lite.envs.options import EnvOptions
     from marlander_lite.make import ENV_IDS, SIMULATORS, make_parallel_env, make_vec_env
     from marlander_lite.platforms import PLATFORM_KINDS, PlatformConfig
     from marlander_lite.sensing import SensingConfig
+    from marlander_lite.simulators import SimulatorEntry, register_simulator, simulator_entry
     from marlander_lite.task import TaskConfig
 except KeyboardInterrupt:
     if not _started_as_command():
@@ -42,22 +43,18 @@ except KeyboardInterrupt:
 
 __version__ = "0.1.0"
 
-_ENTRY_POINTS = {
-    "pointmass": "marlander_lite.pointmass.envs:PointMassLandingEnv",
-    "crazyflie": "marlander_lite.crazyflie.envs:CrazyflieLandingEnv",
-}
-for _name, _env_id in ENV_IDS.items():
-    if _env_id not in registry:
-        register(id=_env_id, entry_point=_ENTRY_POINTS[_name])
-
 __all__ = [
     "ENV_IDS",
     "PLATFORM_KINDS",
     "SIMULATORS",
+    "EnvOptions",
     "PlatformConfig",
     "SensingConfig",
+    "SimulatorEntry",
     "TaskConfig",
     "__version__",
     "make_parallel_env",
     "make_vec_env",
+    "register_simulator",
+    "simulator_entry",
 ]

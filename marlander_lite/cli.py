@@ -12,14 +12,16 @@ argument helpers the command modules share (:func:`positive_int`, :func:`check_o
 from __future__ import annotations
 
 import argparse
+import difflib
 import importlib
 import sys
 from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import NoReturn
+from typing import Any, NoReturn
 
 COMMAND_MODULES = (
     "marlander_lite.training.commands",
+    "marlander_lite.training.sweep_command",
     "marlander_lite.experiments.commands",
     "marlander_lite.experiments.transfer_command",
     "marlander_lite.deploy.commands",
@@ -39,7 +41,7 @@ LIBRARY_ERRORS = {
     "marlander_lite.deploy.schema": "ConfigError",
     "marlander_lite.policy_file": "PolicyFileError",
     "marlander_lite.deploy.link": "LinkError",
-    "marlander_lite.deploy.sim_world": "SimulatorUnavailable",
+    "marlander_lite.deploy.rehearsal.world": "SimulatorUnavailable",
 }
 """The library's own error types (module -> class name), looked up only if their module was imported."""
 
@@ -89,10 +91,49 @@ def check_output_file(
 
 
 class OneLineParser(argparse.ArgumentParser):
-    """An ``ArgumentParser`` whose errors are one line (no usage block); its subcommand parsers are too."""
+    """An ``ArgumentParser`` whose errors are one line (no usage block); its subcommand parsers are too.
+
+    An unknown option is reported by the (sub)command it was given to, with the options it may have meant.
+    """
 
     def error(self, message: str) -> NoReturn:
         self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
+
+    def parse_args(self, args: Sequence[str] | None = None, namespace: Any = None) -> argparse.Namespace:  # type: ignore[override]
+        parsed, extras = self.parse_known_args(args, namespace)
+        if extras:
+            command = _command_parser(self, parsed)
+            command.error(unrecognized(extras, [s for a in command._actions for s in a.option_strings]))
+        return parsed
+
+
+def _command_parser(parser: argparse.ArgumentParser, args: argparse.Namespace) -> argparse.ArgumentParser:
+    """The innermost (sub)command parser that ``args`` went through."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction) and getattr(args, action.dest, None) in action.choices:
+            return _command_parser(action.choices[getattr(args, action.dest)], args)
+    return parser
+
+
+def unrecognized(extras: Sequence[str], options: Sequence[str]) -> str:
+    """The error for words no option took: each unknown option with the ones it may have meant.
+
+    A dotted option (``--task.KEY``) lists every key its group takes; others get the closest spellings.
+    """
+    notes = []
+    for word in extras:
+        name = word.split("=", 1)[0]
+        if not name.startswith("--"):
+            continue
+        group = name.rpartition(".")[0]
+        keys = [o.removeprefix(f"{group}.") for o in options if group and o.startswith(f"{group}.")]
+        keys = [key for key in keys if not key.startswith("no-")]  # the negations of bool keys
+        if keys:
+            notes.append(f"{name}: the keys of {group}.KEY are {', '.join(keys)}")
+            continue
+        close = difflib.get_close_matches(name, options, n=2, cutoff=0.8)
+        notes.append(f"{name}: did you mean {' or '.join(close)}?" if close else f"{name} is not an option here")
+    return f"unrecognized arguments: {' '.join(extras)}" + "".join(f"; {note}" for note in notes)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -3,7 +3,9 @@
 The paper's hardware (Sec. IV-A) is a 0.5 x 0.5 m acrylic plate on the tool flange of a UR10
 arm, carrying two round pads. Its text gives a pad radius of 0.2 m, which cannot fit twice
 on 0.5 m; we use radius 0.1 m with 0.25 m between pad centres (see ``docs/paper_to_code.md``).
-For ``N`` drones the pads form a near-square grid at the same spacing.
+For ``N`` drones the pads form a near-square grid at the same spacing (the default), a line or a
+ring (:class:`PlateGeometry`); beyond the paper, the plate may also be inclined up to 15 degrees and
+more (its future work, Sec. VI: "inclined surfaces").
 
 Four motions cover the paper's experiments (Fig. 7):
 
@@ -37,45 +39,163 @@ DEFAULT_MOVING_SPEED = 0.35
 the paper's 0.2-0.5 m/s range."""
 
 
+PadLayout = Literal["grid", "line", "ring"]
+PAD_LAYOUTS: tuple[str, ...] = get_args(PadLayout)
+MAX_INCLINATION_DEG = 90.0
+"""Plates must tilt less than this from horizontal (degrees): at 90 the pads face sideways."""
+
+
 @dataclass(frozen=True)
 class PlateGeometry:
-    """Size of the plate and its pads."""
+    """Size of the plate, its pads, their layout and the plate's inclination.
+
+    Pad layouts for ``P`` pads (``num_pads``, by default one per drone), all at ``pad_spacing``
+    between neighbouring centres:
+
+    ``grid``  near-square grid, ``ceil(sqrt(P))`` columns, filled row by row along +x then +y (the
+              default; for 2 pads it is the paper's pair along x);
+    ``line``  one row along +x;
+    ``ring``  a regular P-gon around the plate centre whose neighbouring pads are ``pad_spacing``
+              apart (circumradius ``pad_spacing / (2 sin(pi / P))``), pad 0 on +x, counter-clockwise.
+
+    The plate is a square or rectangle sized to hold the layout with half a spacing of margin around
+    the outer pad centres, and at least ``plate_min_side`` wide. With ``inclination_deg`` > 0 (beyond
+    the paper) the plate tilts by that angle about a horizontal axis through its centre at
+    ``tilt_axis_deg`` from +x; pad centres and normals turn with it (:meth:`rotation`).
+    """
 
     pad_radius: float = 0.1
     """Radius of each round pad (m); a landing must end within it (paper text: 0.2, see module doc)."""
     pad_spacing: float = 0.25
-    """Distance between neighbouring pad centres (m)."""
+    """Distance between neighbouring pad centres (m); at least ``2 pad_radius`` so pads do not overlap."""
     pad_thickness: float = 0.0025
     """Pad thickness (m), as in the paper."""
     plate_thickness: float = 0.005
     """Acrylic plate thickness (m); chosen, the paper does not say."""
     plate_min_side: float = 0.5
     """Smallest plate side (m): the paper's plate is 0.5 x 0.5 m."""
+    layout: PadLayout = "grid"
+    """Pad layout, one of ``PAD_LAYOUTS``."""
+    num_pads: int | None = None
+    """Pads on the plate; ``None``: one per drone. Drone ``i`` lands on pad ``i``; a plate with fewer pads than
+    drones is refused."""
+    inclination_deg: float = 0.0
+    """Tilt of the plate from horizontal (degrees, in [0, 90)); beyond the paper, which keeps the plate level."""
+    tilt_axis_deg: float = 0.0
+    """Direction of the horizontal tilt axis, degrees from world +x. 0: the plate turns about +x, right-handed, so
+    its +y edge rises and its normal leans towards -y."""
+
+    def __post_init__(self) -> None:
+        sizes = (self.pad_radius, self.pad_spacing, self.pad_thickness, self.plate_thickness, self.plate_min_side)
+        if not all(isinstance(v, int | float) and math.isfinite(v) and v > 0 for v in sizes):
+            raise ValueError(
+                "PlateGeometry: pad_radius, pad_spacing, pad_thickness, plate_thickness and plate_min_side must be "
+                f"finite numbers > 0 m, got {sizes}."
+            )
+        if self.layout not in PAD_LAYOUTS:
+            raise ValueError(f"Unknown pad layout {self.layout!r}; allowed: {', '.join(PAD_LAYOUTS)}.")
+        if self.pad_spacing < 2 * self.pad_radius:
+            raise ValueError(
+                f"Pads overlap: pad_spacing {self.pad_spacing} m is less than twice the pad radius "
+                f"({2 * self.pad_radius} m); use pad_spacing >= 2 * pad_radius."
+            )
+        if self.num_pads is not None and (
+            isinstance(self.num_pads, bool) or not isinstance(self.num_pads, int) or self.num_pads < 1
+        ):
+            raise ValueError(f"num_pads must be None (one pad per drone) or an integer >= 1, got {self.num_pads!r}.")
+        if not (math.isfinite(self.inclination_deg) and 0 <= self.inclination_deg < MAX_INCLINATION_DEG):
+            raise ValueError(
+                f"inclination_deg must be in [0, {MAX_INCLINATION_DEG:g}) degrees (a plate at 90 degrees or more "
+                f"faces sideways or down), got {self.inclination_deg!r}."
+            )
+        if not math.isfinite(self.tilt_axis_deg):
+            raise ValueError(f"tilt_axis_deg must be finite, got {self.tilt_axis_deg!r}.")
+
+    def pad_count(self, num_drones: int) -> int:
+        """Pads on the plate for ``num_drones`` drones; raises if that is fewer than the drones, or ``N < 1``."""
+        if isinstance(num_drones, bool) or not isinstance(num_drones, int | np.integer) or num_drones < 1:
+            raise ValueError(f"num_drones must be an integer >= 1, got {num_drones!r}.")
+        pads = int(num_drones) if self.num_pads is None else self.num_pads
+        if pads < num_drones:
+            raise ValueError(
+                f"More drones than pads: {num_drones} drones but the plate has {pads} pads (num_pads); every drone "
+                "needs its own pad."
+            )
+        return pads
 
     def grid_shape(self, num_drones: int) -> tuple[int, int]:
-        """(columns, rows) of the near-square pad grid for ``num_drones`` pads."""
-        cols = math.ceil(math.sqrt(num_drones))
-        return cols, math.ceil(num_drones / cols)
+        """(columns, rows) of the pad grid for ``num_drones`` drones (a line is one row)."""
+        pads = self.pad_count(num_drones)
+        if self.layout == "line":
+            return pads, 1
+        cols = math.ceil(math.sqrt(pads))
+        return cols, math.ceil(pads / cols)
+
+    def ring_radius(self, num_drones: int) -> float:
+        """Circumradius of the ``ring`` layout (m): neighbouring pads ``pad_spacing`` apart; 0 for one pad."""
+        pads = self.pad_count(num_drones)
+        return 0.0 if pads == 1 else self.pad_spacing / (2 * math.sin(math.pi / pads))
 
     def half_extents(self, num_drones: int) -> tuple[float, float]:
-        """Half the plate's side lengths (x, y) in metres."""
+        """Half the plate's side lengths (x, y) in metres, in the plate's own (untilted) frame."""
+        if self.layout == "ring":
+            side = 2 * self.ring_radius(num_drones) + self.pad_spacing
+            side = max(side, self.plate_min_side)
+            return side / 2, side / 2
         cols, rows = self.grid_shape(num_drones)
         side_x = max(cols * self.pad_spacing, self.plate_min_side)
         side_y = max(rows * self.pad_spacing, self.plate_min_side)
         return side_x / 2, side_y / 2
 
-    def pad_offsets(self, num_drones: int) -> np.ndarray:
-        """Centre of each pad's top face relative to the plate position, ``(num_drones, 3)`` m.
+    def rotation(self) -> np.ndarray:
+        """``(3, 3)`` rotation from the plate frame to the world frame (Rodrigues about the tilt axis).
 
-        Pad ``i`` belongs to drone ``i``; the grid is filled row by row along +x, then +y.
+        The identity for a level plate. Column 2 is the plate's (and every pad's) normal.
         """
-        cols, rows = self.grid_shape(num_drones)
-        idx = np.arange(num_drones)
-        col, row = idx % cols, idx // cols
-        x = (col - (cols - 1) / 2) * self.pad_spacing
-        y = (row - (rows - 1) / 2) * self.pad_spacing
+        if self.inclination_deg == 0:
+            return np.eye(3)
+        theta, psi = math.radians(self.inclination_deg), math.radians(self.tilt_axis_deg)
+        k = np.array([math.cos(psi), math.sin(psi), 0.0])
+        cross = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+        return np.eye(3) + math.sin(theta) * cross + (1 - math.cos(theta)) * cross @ cross
+
+    def normal(self) -> np.ndarray:
+        """Unit normal of the plate's top face (and of every pad), world frame, ``(3,)``; ``+z`` when level."""
+        return self.rotation()[:, 2].copy()
+
+    def pad_offsets(self, num_drones: int) -> np.ndarray:
+        """Centre of each drone's pad top face relative to the plate position, ``(num_drones, 3)`` m, world frame.
+
+        Pad ``i`` belongs to drone ``i`` (pads beyond ``num_drones`` stay empty). On a tilted plate the
+        offsets are turned by :meth:`rotation`.
+        """
+        pads = self.pad_count(num_drones)
+        if self.layout == "ring":
+            angle = 2 * math.pi * np.arange(num_drones) / pads
+            radius = self.ring_radius(num_drones)
+            x, y = radius * np.cos(angle), radius * np.sin(angle)
+        else:
+            cols, rows = self.grid_shape(num_drones)
+            idx = np.arange(num_drones)
+            col, row = idx % cols, idx // cols
+            x = (col - (cols - 1) / 2) * self.pad_spacing
+            y = (row - (rows - 1) / 2) * self.pad_spacing
         z = np.full(num_drones, self.pad_thickness)
-        return np.stack((x, y, z), axis=-1)
+        offsets = np.stack((x, y, z), axis=-1)
+        if self.inclination_deg == 0:
+            return offsets  # bit for bit the level plate's
+        return offsets @ self.rotation().T
+
+    def lowest_corner_drop(self, num_drones: int) -> float:
+        """How far below the plate position the lowest corner of the tilted top face lies (m); 0 when level.
+
+        A tilted plate on the floor is raised by this much so that no corner goes through the floor.
+        """
+        if self.inclination_deg == 0:
+            return 0.0
+        hx, hy = self.half_extents(num_drones)
+        corners = np.array([[sx * hx, sy * hy, 0.0] for sx in (-1, 1) for sy in (-1, 1)])
+        return float(max(0.0, -(corners @ self.rotation().T)[:, 2].min()))
 
 
 @dataclass(frozen=True)
@@ -194,6 +314,9 @@ class PlatformMotion:
         self.config = config
         self.num_envs = num_envs
         self.pad_offsets = config.geometry.pad_offsets(num_drones)
+        self.pad_normal = config.geometry.normal()
+        """Unit normal of every pad's top face, world frame ``(3,)``: ``+z`` unless the plate is inclined."""
+        self._floor_lift = config.geometry.lowest_corner_drop(num_drones)
         hx, hy = config.geometry.half_extents(num_drones)
         self._plate_half_diag = math.hypot(hx, hy)
         self._arena_half_width = arena_half_width
@@ -223,9 +346,9 @@ class PlatformMotion:
         cfg = self.config
         self.anchor[env_ids, :2] = rng.uniform(-self._free, self._free, size=(n, 2))
         if cfg.kind == "static-floor":
-            self.anchor[env_ids, 2] = cfg.geometry.plate_thickness
+            self.anchor[env_ids, 2] = cfg.geometry.plate_thickness + self._floor_lift
         else:
-            self.anchor[env_ids, 2] = rng.uniform(*cfg.elevated_height, size=n)
+            self.anchor[env_ids, 2] = rng.uniform(*cfg.elevated_height, size=n) + self._floor_lift
         self.heading[env_ids] = rng.uniform(-math.pi, math.pi, size=n)
         self.phase[env_ids] = rng.uniform(0.0, 2.0, size=n)
         low, high = cfg.speed_range

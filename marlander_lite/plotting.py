@@ -67,6 +67,8 @@ def plot_training_curves(
 ) -> plt.Figure:
     """One panel per curve (default: the paper's Fig. 5 and Fig. 6), one line per run.
 
+    A sweep folder (``marlander sweep``) counts as one run: its line is the IQM over its seeds (the mean
+    with fewer than four) with a 95 % bootstrap band (:func:`marlander_lite.experiments.seed_stats.seed_curves`).
     The x axis is environment steps in millions.
     """
     unknown = [c for c in curves if c not in CURVES]
@@ -75,19 +77,23 @@ def plot_training_curves(
     labels = list(labels) if labels is not None else [Path(r).name for r in runs]
     if len(labels) != len(runs):
         raise ValueError(f"Got {len(labels)} labels for {len(runs)} runs.")
-    logs = [read_progress(run) for run in runs]  # every log is checked before a figure is opened
+    from marlander_lite.training.sweep import sweep_runs
+
+    seeds = [sweep_runs(run) for run in runs]  # a sweep's finished seeds; None for a single run
+    # every log is checked before a figure is opened
+    logs = [read_progress(run) if group is None else {} for run, group in zip(runs, seeds, strict=True)]
     cols = min(2, len(curves))
     rows = -(-len(curves) // cols)
     fig, grid = plt.subplots(rows, cols, figsize=(5.5 * cols, 3.6 * rows), squeeze=False)
     for spare in grid.ravel()[len(curves) :]:
         spare.set_visible(False)
     axes = grid.ravel()[: len(curves)]
-    for data, label in zip(logs, labels, strict=True):
-        steps = data[STEPS_COLUMN] / 1e6
+    for data, group, label in zip(logs, seeds, labels, strict=True):
         for ax, name in zip(axes, curves, strict=True):
-            column = CURVES[name][0]
-            if column in data:
-                ax.plot(steps, data[column], label=label)
+            if group is not None:
+                _plot_over_seeds(ax, group, name, label)
+            elif CURVES[name][0] in data:
+                ax.plot(data[STEPS_COLUMN] / 1e6, data[CURVES[name][0]], label=label)
     for ax, name in zip(axes, curves, strict=True):
         _, ylabel, figure = CURVES[name]
         ax.set_xlabel("Environment steps (millions)")
@@ -100,3 +106,12 @@ def plot_training_curves(
         Path(out).parent.mkdir(parents=True, exist_ok=True)
         fig.savefig(out, dpi=120)
     return fig
+
+
+def _plot_over_seeds(ax: plt.Axes, runs: Sequence[Path], curve: str, label: str) -> None:
+    from marlander_lite.experiments.seed_stats import seed_curves
+
+    summary = seed_curves(runs, curve)
+    centre = "IQM" if len(runs) >= 4 else "mean"
+    (line,) = ax.plot(summary.steps / 1e6, summary.centre, label=f"{label} ({centre} of {len(runs)} seeds)")
+    ax.fill_between(summary.steps / 1e6, summary.low, summary.high, color=line.get_color(), alpha=0.25, lw=0)

@@ -7,6 +7,13 @@ safetensors can run it; :class:`MLPPolicy` does so in numpy, which is what the d
 uses. Loading checks the contract against what the caller is about to feed it and refuses a
 mismatch, so a two-drone policy can never be flown on a three-drone config by accident.
 
+Two kinds of policy share the format. A *centralised* policy (the paper's) reads every drone's
+observation at once: ``num_drones`` says how many, ``neighbours`` is absent. A *shared* policy
+(beyond the paper, :mod:`marlander_lite.swarm`) is one network applied to each drone in turn; it
+reads the drone's own observation plus its ``neighbours`` nearest neighbours (7 numbers each, see
+:mod:`marlander_lite.swarm.observation`) and flies a swarm of any size, so its ``num_drones`` is
+``null``: the contract declares it N-free. Each kind is refused where the other is expected.
+
 Nothing in a file is trusted. Loading checks, in order, and refuses with a
 :class:`PolicyFileError` saying what is wrong:
 
@@ -45,6 +52,13 @@ OBSERVATION_LAYOUT = (
     "per drone: p (3, m, relative to own goal), q (4, x y z w), v (3, m/s, relative to platform), omega (3, rad/s)"
 )
 ACTION_LAYOUT = "per drone: velocity command (3, world x y z) as a fraction of max_speed, in [-1, 1]"
+SHARED_OBSERVATION_LAYOUT = (
+    "one drone: its own p, q, v, omega as above, then for each of its k nearest neighbours, nearest first: "
+    "position minus its own (3, m), velocity minus its own (3, m/s), present flag (1; 0 with zeros when absent)"
+)
+SHARED_ACTION_LAYOUT = "one drone: velocity command (3, world x y z) as a fraction of max_speed, in [-1, 1]"
+NEIGHBOUR_FEATURES = 7
+"""Numbers per neighbour in a shared policy's input (``marlander_lite.swarm.observation``)."""
 Activation = Literal["relu", "tanh"]
 ACTIVATIONS: tuple[str, ...] = get_args(Activation)
 ACTIVATION_FUNCTIONS: dict[str, Callable[[np.ndarray], np.ndarray]] = {
@@ -73,8 +87,9 @@ class PolicyContract:
     The ``Annotated`` constraints are what a file's contract is validated against when read.
     """
 
-    num_drones: Annotated[int, Strict(), Field(ge=1, le=64)]
-    """Drones whose observations are concatenated in the input (1 for a single-agent policy)."""
+    num_drones: Annotated[int, Strict(), Field(ge=1, le=64)] | None
+    """Drones whose observations are concatenated in the input (1 for a single-agent policy); ``None`` for a
+    shared policy, which flies any number of drones."""
     max_speed: Annotated[Real, Field(gt=0, le=20)]
     """Action 1.0 means this speed (m/s)."""
     policy_hz: Annotated[Real, Field(ge=1, le=1000)]
@@ -95,23 +110,63 @@ class PolicyContract:
     """The full TaskConfig the policy was trained with, for the record."""
     extra: Annotated[dict[str, Any], Field(max_length=256)] = field(default_factory=dict)
     """Free-form notes: preset name, simulator, training steps, seed."""
+    neighbours: Annotated[int, Strict(), Field(ge=1, le=64)] | None = None
+    """Shared policy only: the ``k`` nearest neighbours in each drone's input; ``None`` for a centralised policy."""
+    neighbour_radius: Annotated[Real, Field(gt=0, le=100)] | None = None
+    """Shared policy only: neighbours farther than this (m) are left out of the input (zeros, flag 0); ``None``:
+    the k nearest at any distance."""
+
+    @property
+    def is_shared(self) -> bool:
+        """One network per drone, any swarm size (``neighbours`` set, ``num_drones`` None)."""
+        return self.neighbours is not None
 
     @property
     def obs_dim(self) -> int:
-        return self.obs_per_drone * self.num_drones
+        if self.neighbours is not None:
+            return self.obs_per_drone + NEIGHBOUR_FEATURES * self.neighbours
+        return self.obs_per_drone * int(self.num_drones or 0)
 
     @property
     def act_dim(self) -> int:
-        return ACT_PER_DRONE * self.num_drones
+        return ACT_PER_DRONE * (1 if self.is_shared else int(self.num_drones or 0))
 
-    def check_compatible(self, task: TaskConfig, *, per_drone: bool = False) -> None:
+    def check_kind(self) -> None:
+        """Raise :class:`PolicyFileError` unless exactly one of ``num_drones`` (centralised) and ``neighbours``
+        (shared) is set."""
+        if self.is_shared and self.num_drones is not None:
+            raise PolicyFileError(
+                f"a shared policy (neighbours={self.neighbours}) flies any number of drones: its num_drones must be "
+                f"null, got {self.num_drones}"
+            )
+        if not self.is_shared and self.neighbour_radius is not None:
+            raise PolicyFileError(
+                "neighbour_radius is set but neighbours is not: only a shared policy senses neighbours"
+            )
+        if not self.is_shared and self.num_drones is None:
+            raise PolicyFileError(
+                "num_drones is null but neighbours is not set: neither a centralised nor a shared policy"
+            )
+
+    def check_compatible(self, task: TaskConfig, *, per_drone: bool = False, shared: bool = False) -> None:
         """Raise :class:`PolicyFileError` if this policy cannot drive ``task``.
 
-        ``per_drone=True`` accepts a single-drone policy applied to each drone in turn.
+        ``per_drone=True`` accepts a single-drone policy applied to each drone in turn; ``shared=True``
+        asks for a shared policy (any N), ``False`` (the default) for a centralised one.
         """
+        if shared != self.is_shared:
+            kind = (
+                f"a shared policy (N-free, {self.neighbours} neighbours)" if self.is_shared else "a centralised policy"
+            )
+            use = (
+                "fly it with marlander_lite.swarm.SharedPolicy"
+                if self.is_shared
+                else "a shared policy comes from the 'shared-quick' preset (marlander_lite.swarm.train)"
+            )
+            raise PolicyFileError(f"Policy does not fit this use: it is {kind}; {use}.")
         expected_drones = 1 if per_drone else task.num_drones
         problems = []
-        if self.num_drones != expected_drones:
+        if not self.is_shared and self.num_drones != expected_drones:
             problems.append(f"it takes {self.num_drones} drone(s), the task has {expected_drones}")
         if not np.isclose(self.max_speed, task.max_speed):
             problems.append(f"its max_speed is {self.max_speed} m/s, the task's is {task.max_speed} m/s")
@@ -169,6 +224,9 @@ def observation_bounds(contract: PolicyContract) -> np.ndarray:
     """``(obs_dim,)`` half-widths of the observation space: observations are clipped to ``task.OBS_LIMITS``."""
     p, q, v, w = OBS_LIMITS
     per_drone = np.repeat([p, q, v, w, v], [3, 4, 3, 3, 3])[: contract.obs_per_drone]
+    if contract.neighbours is not None:  # neighbours' relative position and velocity span twice the bounds
+        neighbour = np.repeat([2 * p, 2 * v, 1.0], [3, 3, 1])
+        return np.concatenate([per_drone, np.tile(neighbour, contract.neighbours)])
     return np.tile(per_drone, contract.num_drones)
 
 
@@ -243,8 +301,8 @@ def save_policy(path: str | Path, contract: PolicyContract, tensors: dict[str, n
     meta = {
         "format": FORMAT,
         "format_version": str(FORMAT_VERSION),
-        "observation_layout": OBSERVATION_LAYOUT,
-        "action_layout": ACTION_LAYOUT,
+        "observation_layout": SHARED_OBSERVATION_LAYOUT if contract.is_shared else OBSERVATION_LAYOUT,
+        "action_layout": SHARED_ACTION_LAYOUT if contract.is_shared else ACTION_LAYOUT,
         "contract": text,
     }
     save_file({k: np.ascontiguousarray(v, dtype=np.float32) for k, v in tensors.items()}, str(path), metadata=meta)
@@ -256,12 +314,15 @@ def read_contract(path: str | Path) -> PolicyContract:
     return _read(path)[0]
 
 
-def load_policy(path: str | Path, task: TaskConfig | None = None, *, per_drone: bool = False) -> MLPPolicy:
+def load_policy(
+    path: str | Path, task: TaskConfig | None = None, *, per_drone: bool = False, shared: bool = False
+) -> MLPPolicy:
     """Load a policy file for numpy inference, checked as the module docstring says; with ``task``, refuse it
-    if the contract does not fit. Every refusal is a :class:`PolicyFileError`."""
+    if the contract does not fit (``shared=True``: a shared, N-free policy is wanted). Every refusal is a
+    :class:`PolicyFileError`."""
     contract, tensors = _read(path)
     if task is not None:
-        contract.check_compatible(task, per_drone=per_drone)
+        contract.check_compatible(task, per_drone=per_drone, shared=shared)
     try:
         policy = MLPPolicy(contract, tensors)
         check_outputs(policy)
@@ -287,7 +348,9 @@ def parse_contract(text: str, where: str = "contract") -> PolicyContract:
     """A :class:`PolicyContract` from its JSON text, validated field by field; :class:`PolicyFileError` if not."""
     try:
         fields = json.loads(text, object_pairs_hook=_no_duplicate_keys)
-        return _contract_adapter().validate_python(fields)
+        contract = _contract_adapter().validate_python(fields)
+        contract.check_kind()
+        return contract
     except (json.JSONDecodeError, RecursionError) as error:
         raise PolicyFileError(f"{where} is not valid JSON ({type(error).__name__}: {error}).") from None
     except PolicyFileError as error:

@@ -30,6 +30,9 @@ class SensingConfig:
     """Gaussian noise on the angular velocity (rad/s)."""
     latency_s: float = 0.0
     """Delay between the true state and the observation (s); fractions of a policy step are interpolated."""
+    latency_spread_s: float = 0.0
+    """Each swarm draws its delay at every reset, uniformly within ``latency_s`` +- this (s, clipped at 0): a policy
+    trained so does not come to rely on one exact delay (training aid; 0 keeps the delay fixed)."""
 
     def __post_init__(self) -> None:
         for name, value in vars(self).items():
@@ -61,6 +64,23 @@ class SensingConfig:
         """
         return cls(pos_noise_std=0.001, quat_noise_std=0.05, vel_noise_std=0.02, ang_vel_noise_std=2.0, latency_s=0.02)
 
+    @classmethod
+    def robust(cls) -> SensingConfig:
+        """Training aid, not in the paper: :meth:`noisy` with the delay drawn per episode within 0-40 ms.
+
+        A policy trained with exactly 20 ms of delay (:meth:`noisy`) landed 98 % of point-mass episodes with 20 ms
+        but 69 % with none: it touched down at 0.51 m/s, just above the 0.5 m/s limit. Simulators that observe the
+        true state, and labs with another delay, need a policy that does not rely on one value.
+        """
+        return cls(
+            pos_noise_std=0.001,
+            quat_noise_std=0.05,
+            vel_noise_std=0.02,
+            ang_vel_noise_std=2.0,
+            latency_s=0.02,
+            latency_spread_s=0.02,
+        )
+
     @property
     def is_perfect(self) -> bool:
         return not any(vars(self).values())
@@ -76,11 +96,15 @@ class ObservationChannel:
     def __init__(
         self, config: SensingConfig, num_envs: int, num_drones: int, dt: float, obs_per_drone: int = OBS_PER_DRONE
     ) -> None:
-        self.config = config
+        self.config, self._dt = config, dt
         steps = config.latency_s / dt
         self._whole = int(np.floor(steps))
         self._frac = float(steps - self._whole)
-        self._history = np.zeros((self._whole + 2, num_envs, num_drones, obs_per_drone))
+        longest = int(np.floor((config.latency_s + config.latency_spread_s) / dt))
+        self._history = np.zeros((longest + 2, num_envs, num_drones, obs_per_drone))
+        # Per-env delay in policy steps (whole part, fraction), drawn at reset when the delay is spread.
+        self._env_whole = np.full(num_envs, self._whole)
+        self._env_frac = np.full(num_envs, self._frac)
         std = np.zeros(obs_per_drone)
         std[0:3], std[3:7] = config.pos_noise_std, config.quat_noise_std
         std[7:10], std[10:13] = config.vel_noise_std, config.ang_vel_noise_std
@@ -90,13 +114,26 @@ class ObservationChannel:
     def reset(self, env_ids: np.ndarray, obs: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """Start ``env_ids`` afresh from ``obs`` (their history holds nothing older) and return what the policy sees."""
         self._history[:, env_ids] = obs
+        if self.config.latency_spread_s:
+            spread = self.config.latency_spread_s
+            latency = np.maximum(self.config.latency_s + rng.uniform(-spread, spread, np.size(env_ids)), 0.0)
+            steps = latency / self._dt
+            self._env_whole[env_ids] = np.floor(steps).astype(int)
+            self._env_frac[env_ids] = steps - np.floor(steps)
         return self._degrade(obs, rng)
 
     def observe(self, obs: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """Push the true observation of every env and return what the policy sees."""
         if self.config.is_perfect:
             return obs
-        if self._whole or self._frac:
+        if self.config.latency_spread_s:
+            self._history = np.roll(self._history, 1, axis=0)
+            self._history[0] = obs
+            envs = np.arange(self._history.shape[1])
+            frac = self._env_frac[:, None, None]
+            obs = (1.0 - frac) * self._history[self._env_whole, envs] + frac * self._history[self._env_whole + 1, envs]
+            obs[..., 3:7] = quat_normalize(obs[..., 3:7])
+        elif self._whole or self._frac:
             self._history = np.roll(self._history, 1, axis=0)
             self._history[0] = obs
             obs = (1.0 - self._frac) * self._history[self._whole] + self._frac * self._history[self._whole + 1]

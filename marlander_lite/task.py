@@ -1,9 +1,12 @@
 """The MARLander MDP (paper Sec. III-B/C), written once and shared by every simulator.
 
-Everything here is pure numpy and batched: arrays are ``(num_envs, num_drones, ...)``.
-Both simulators (:mod:`marlander_lite.pointmass`, :mod:`marlander_lite.crazyflie`) and the
-deployment loop (:mod:`marlander_lite.deploy`) call these functions, so an observation or a
-reward means the same thing everywhere.
+Everything here is plain, batched numpy, written to be checked against the paper line by line:
+arrays are ``(num_envs, num_drones, ...)`` in any memory layout. Both simulators
+(:mod:`marlander_lite.pointmass`, :mod:`marlander_lite.crazyflie`) and the deployment loop
+(:mod:`marlander_lite.deploy`) call these functions, so an observation or a reward means the same
+thing everywhere. A simulator that computes in a layout of its own (the point mass: Fortran order)
+converts at its own boundary; ``tests/test_task.py`` checks that its observations equal these
+formulas to the last bit.
 
 Paper symbol -> code:
 
@@ -237,33 +240,22 @@ def observe(
         pad_vel: only with ``TaskConfig.observe_platform_velocity`` (beyond the paper): the pad's
             world velocity ``(..., 3)`` m/s, appended as numbers 13-15.
 
-    Each part is clipped to :data:`OBS_LIMITS`. For a batch ``(num_envs, N, 13)`` the result is
-    laid out so that ``obs.reshape(num_envs, 13 N)`` is a view with the env index varying fastest
-    (a Fortran-ordered matrix), which is cheap to fill from the simulators' arrays.
+    Each part is clipped to :data:`OBS_LIMITS`; a unit quaternion is within ``[-1, 1]`` already.
     """
-    lead = rel_pos.shape[:-1]
-    size = OBS_PER_DRONE + (0 if pad_vel is None else 3)
-    if len(lead) == 2:
-        out = np.empty((lead[1], size, lead[0])).transpose(2, 0, 1)
-    else:
-        out = np.empty((*lead, size))
     p_max, _, v_max, w_max = OBS_LIMITS
-    _clip_into(rel_pos, p_max, out[..., 0:3])
-    out[..., 3:7] = quat  # unit quaternions are within [-1, 1] already
-    _clip_into(rel_vel, v_max, out[..., 7:10])
-    _clip_into(ang_vel, w_max, out[..., 10:13])
+    parts = [
+        np.clip(rel_pos, -p_max, p_max),
+        quat,
+        np.clip(rel_vel, -v_max, v_max),
+        np.clip(ang_vel, -w_max, w_max),
+    ]
     if pad_vel is not None:
-        _clip_into(pad_vel, v_max, out[..., 13:16])
-    return out
-
-
-def _clip_into(x: np.ndarray, limit: float, out: np.ndarray) -> np.ndarray:
-    """``out = clip(x, -limit, limit)``; on one swarm's small arrays two ufuncs cost half of ``np.clip``."""
-    return np.minimum(np.maximum(x, -limit, out=out), limit, out=out)
+        parts.append(np.clip(pad_vel, -v_max, v_max))
+    return np.concatenate(parts, axis=-1)
 
 
 def flatten_observations(obs: np.ndarray) -> np.ndarray:
-    """Centralised input of the paper's policy: ``(num_envs, N, 13)`` -> ``(num_envs, 13 N)``."""
+    """Centralised input of the paper's policy: ``(num_envs, N, 13)`` -> ``(num_envs, 13 N)``, drone by drone."""
     return obs.reshape(obs.shape[0], -1)
 
 
@@ -274,14 +266,13 @@ def action_to_velocity(action: Any, num_drones: int, max_speed: float) -> np.nda
     """Eq. 3: normalised actions -> velocity commands ``u`` in m/s, shape ``(num_envs, N, 3)``.
 
     ``action`` may be ``(3N,)``, ``(N, 3)``, ``(num_envs, 3N)`` or ``(num_envs, N, 3)``, each
-    entry in ``[-1, 1]``. Entries outside are clipped (policies with Gaussian heads sample
-    beyond the box); NaN or infinite entries raise, since no safe velocity can be read from them.
+    entry in ``[-1, 1]``; action 1.0 is ``max_speed``. Entries outside are clipped (policies with
+    Gaussian heads sample beyond the box); NaN or infinite entries raise, since no safe velocity
+    can be read from them.
     """
-    a = np.asarray(action)
+    a = np.asarray(action, dtype=np.float64)
     n3 = ACT_PER_DRONE * num_drones
-    if a.ndim == 1 and a.shape[0] == n3:
-        a = a.reshape(1, num_drones, ACT_PER_DRONE)
-    elif a.ndim == 2 and a.shape == (num_drones, ACT_PER_DRONE):
+    if a.shape in ((n3,), (num_drones, ACT_PER_DRONE)):
         a = a.reshape(1, num_drones, ACT_PER_DRONE)
     elif a.ndim == 2 and a.shape[1] == n3:
         a = a.reshape(a.shape[0], num_drones, ACT_PER_DRONE)
@@ -290,14 +281,9 @@ def action_to_velocity(action: Any, num_drones: int, max_speed: float) -> np.nda
             f"Action has shape {a.shape}; for {num_drones} drone(s) expected ({n3},), ({num_drones}, 3), "
             f"(num_envs, {n3}) or (num_envs, {num_drones}, 3)."
         )
-    # Fortran order: the layout the batched simulators compute in.
-    velocity = np.array(a, dtype=np.float64, order="F")
-    # One float64 sum is finite exactly when every entry is (float32 inputs cannot overflow it).
-    if not np.isfinite(velocity.sum()):
+    if not np.isfinite(a).all():
         raise ValueError(f"Action contains NaN or infinite values: {np.asarray(action)!r}. Every entry must be finite.")
-    _clip_into(velocity, 1.0, velocity)
-    velocity *= max_speed
-    return velocity
+    return np.clip(a, -1.0, 1.0) * max_speed
 
 
 def next_target_position(pos: np.ndarray, velocity: np.ndarray, dt: float) -> np.ndarray:
@@ -377,6 +363,20 @@ def touchdown_outcome(
     touching = (contact != CONTACT_NONE) & ~landed_before
     landed_now = touching & (contact == CONTACT_OWN_PAD) & (horizontal_error <= pad_radius) & (rel_speed <= speed_max)
     return landed_now, touching & ~landed_now
+
+
+def pad_frame_errors(rel_pos: np.ndarray, normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A drone's position relative to its pad, in the pad's frame: ``(height, offset)``, each ``(...)`` m.
+
+    ``height = p . n`` is measured along the pad normal ``n`` ``(3,)`` and ``offset = |p - (p . n) n|`` within
+    the pad plane; on a level pad (``n = e_z``) they are ``p_z`` and the horizontal distance. For an inclined
+    plate (beyond the paper, ``platforms.PlateGeometry.inclination_deg``) the offset is what
+    :func:`touchdown_outcome` should compare with the pad radius as its ``horizontal_error``.
+    """
+    n = np.asarray(normal, dtype=float)
+    height = rel_pos @ n
+    offset_sq = np.einsum("...k,...k->...", rel_pos, rel_pos) - height * height
+    return height, np.sqrt(np.maximum(offset_sq, 0.0))
 
 
 def outside_arena(pos: np.ndarray, config: TaskConfig) -> np.ndarray:

@@ -17,6 +17,7 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 import marlander_lite
 from marlander_lite.crazyflie import CF2XParams, CrazyflieSwarm, PhysicsConfig, PIDGains
 from marlander_lite.crazyflie.control import CascadedPID, attitude_loop_spectral_radius, mixer_matrix
+from marlander_lite.crazyflie.envs import CrazyflieOptions
 from marlander_lite.crazyflie.physics import MotorLag, downwash_push, ground_effect_gain, motor_wrench
 from marlander_lite.crazyflie.world import CF2X_URDF
 from marlander_lite.episodes import LandingEpisodes
@@ -362,11 +363,30 @@ def test_rgb_array_render_and_video_recording(tmp_path):
         ({"render_mode": "ascii"}, ValueError, "allowed: None, rgb_array, human"),
         ({"propellers": 6}, TypeError, "allowed options"),
         ({"platform": "trampoline"}, ValueError, "allowed: static-floor"),
+        ({"controller": "lqr"}, ValueError, "allowed: 'pid', 'firmware'"),
+        ({"drone": "cf21"}, TypeError, "drone must be a CF2XParams"),
     ],
 )
 def test_bad_env_options_raise_clear_errors(kwargs, error, message):
     with pytest.raises(error, match=message):
         gym.make(ENV_ID, **kwargs)
+
+
+def test_an_options_object_with_face_keywords_builds_the_same_env_as_keywords():
+    options = CrazyflieOptions(num_drones=3, physics="bare", controller="firmware", task={"episode_seconds": 1.0})
+    by_object = gym.make(ENV_ID, options=options, render_mode="rgb_array").unwrapped
+    by_keywords = gym.make(ENV_ID, render_mode="rgb_array", **vars(options)).unwrapped
+    for env in (by_object, by_keywords):
+        assert env.num_drones == 3 and env.render_mode == "rgb_array" and env.task.episode_seconds == 1.0
+        assert env.simulator.controller_kind == "firmware" and env.simulator.physics.aero_effects == ()
+    obs = [env.reset(seed=4)[0] for env in (by_object, by_keywords)]
+    steps = [env.step(np.full(9, 0.3, dtype=np.float32))[0] for env in (by_object, by_keywords)]
+    np.testing.assert_array_equal(obs[0], obs[1])
+    np.testing.assert_array_equal(steps[0], steps[1])
+    for env in (by_object, by_keywords):
+        env.close()
+    with pytest.raises(TypeError, match=r"\['gui'\]; allowed options: num_drones.*perturbation, num_envs, seed"):
+        marlander_lite.make_vec_env("crazyflie", options=options, gui=True)
 
 
 def test_bad_actions_and_positions_raise_and_leave_the_env_usable():

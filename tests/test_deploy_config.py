@@ -7,7 +7,14 @@ import time
 import pytest
 import yaml
 
-from marlander_lite.deploy.config import EXAMPLE_CONFIG, ConfigError, LabConfig, load_lab_config
+from marlander_lite.deploy.config import (
+    EXAMPLE_CONFIG,
+    SIMULATOR_KINDS,
+    ConfigError,
+    LabConfig,
+    SimulationConfig,
+    load_lab_config,
+)
 
 
 @pytest.fixture
@@ -215,3 +222,28 @@ def test_replace_validates_like_a_file():
     with pytest.raises(ConfigError, match=r"^limits.takeoff_duration: Input should be less than or equal to 10"):
         lab.replace(limits=too_slow)  # ... the lab config it goes into is
     assert lab.replace() == lab
+
+
+def test_the_old_simulator_name_still_loads_with_a_warning_naming_the_new_one(tmp_path, example):
+    """``simulator: pybullet`` (the name before the registry) loads as ``crazyflie``; the user is told to update."""
+    assert load_lab_config(EXAMPLE_CONFIG).simulation.simulator == "crazyflie"
+    old = tmp_path / "lab.yaml"
+    old.write_text(EXAMPLE_CONFIG.read_text().replace("simulator: crazyflie", "simulator: pybullet"))
+    assert "simulator: pybullet" in old.read_text()
+    with pytest.warns(
+        FutureWarning, match=r"lab\.yaml: simulation\.simulator: 'pybullet' .* write 'crazyflie'"
+    ) as seen:
+        lab = load_lab_config(old)
+    assert len(seen) == 1 and lab.simulation.simulator == "crazyflie"
+    assert lab == load_lab_config(EXAMPLE_CONFIG)  # nothing else changes
+    with pytest.warns(FutureWarning, match="write 'crazyflie'"):
+        assert SimulationConfig(simulator="pybullet").simulator == "crazyflie"
+    example["simulation"]["simulator"] = "bullet"
+    with pytest.raises(ConfigError, match=r"simulation.simulator: Input should be 'pointmass' or 'crazyflie'"):
+        LabConfig.from_dict(example)
+
+
+def test_the_simulators_a_lab_can_rehearse_with_are_the_registered_ones():
+    from marlander_lite.simulators import SIMULATORS
+
+    assert SIMULATOR_KINDS == SIMULATORS == ("pointmass", "crazyflie")

@@ -18,11 +18,11 @@ from cflib.crazyflie.high_level_commander import HighLevelCommander
 from cflib.crazyflie.localization import Localization
 from cflib.crtp.crtpstack import CRTPPort
 
-from marlander_lite.deploy import virtual_firmware as vf
 from marlander_lite.deploy.config import CrazyflieParamsConfig
 from marlander_lite.deploy.link import CrazyflieLink, LinkError
-from marlander_lite.deploy.virtual_crazyflie import VirtualCfFactory
-from marlander_lite.deploy.virtual_firmware import VirtualFirmware
+from marlander_lite.deploy.rehearsal import virtual_firmware as vf
+from marlander_lite.deploy.rehearsal.virtual_crazyflie import VirtualCfFactory
+from marlander_lite.deploy.rehearsal.virtual_firmware import VirtualFirmware
 
 URIS = ["radio://0/80/2M/E7E7E7E701", "radio://0/80/2M/E7E7E7E702"]
 

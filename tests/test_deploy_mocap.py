@@ -9,8 +9,8 @@ from marlander_lite.deploy.config import EXAMPLE_CONFIG, MocapConfig, load_lab_c
 from marlander_lite.deploy.link import CrazyflieLink
 from marlander_lite.deploy.mission import Mission
 from marlander_lite.deploy.pose_sources import MotionCaptureSource, RealClock
-from marlander_lite.deploy.virtual_crazyflie import VirtualCfFactory
-from marlander_lite.deploy.virtual_firmware import VirtualFirmware
+from marlander_lite.deploy.rehearsal.virtual_crazyflie import VirtualCfFactory
+from marlander_lite.deploy.rehearsal.virtual_firmware import VirtualFirmware
 from marlander_lite.policy_file import PolicyContract, load_policy, save_policy
 
 # Bodies as motioncapture's mock takes them: name(x, y, z, qw, qx, qy, qz). The plate is turned
@@ -74,7 +74,7 @@ def test_mock_backend_feeds_the_loop_to_take_off(tmp_path):
     assert result.armed, [e.message for e in result.events]
     kinds = [e.kind for e in result.events if e.kind != "loop_overrun"]  # a loaded CI host may stall the loop
     assert kinds == ["armed", "emergency"], [e.message for e in result.events]
-    est = mission._last_est
+    est = mission.stream.last
     np.testing.assert_allclose(est.pos, [[-0.6, 0.5, 0.0125], [0.6, 0.5, 0.0125]], atol=1e-6)
     np.testing.assert_allclose(est.pad_pos, EXPECTED_PADS, atol=1e-6)
     np.testing.assert_allclose(est.vel, 0.0, atol=1e-9)

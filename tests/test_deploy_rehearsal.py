@@ -15,14 +15,14 @@ import pytest
 
 from marlander_lite.cli import main
 from marlander_lite.deploy.config import EXAMPLE_CONFIG, LabConfig, SimulationConfig, load_lab_config
-from marlander_lite.deploy.faults import FAULT_KINDS, FaultSpec
 from marlander_lite.deploy.flight_log import FlightLogWriter, read_flight_log
 from marlander_lite.deploy.link import CrazyflieLink
 from marlander_lite.deploy.mission import Mission
 from marlander_lite.deploy.plots import plot_timeline, plot_trajectories
-from marlander_lite.deploy.pose_sources import SimulatedPoseSource
 from marlander_lite.deploy.rehearsal import rehearse
-from marlander_lite.deploy.sim_world import SimulatedWorld, make_simulator
+from marlander_lite.deploy.rehearsal.faults import FAULT_KINDS, FaultSpec
+from marlander_lite.deploy.rehearsal.mocap import SimulatedPoseSource
+from marlander_lite.deploy.rehearsal.world import SimulatedWorld, make_simulator
 from marlander_lite.policy_file import load_policy
 
 matplotlib.use("Agg")
@@ -30,7 +30,7 @@ matplotlib.use("Agg")
 try:
     import marlander_lite.crazyflie.simulator  # noqa: F401
 
-    SIMULATORS = ["pointmass", "pybullet"]
+    SIMULATORS = ["pointmass", "crazyflie"]
 except ImportError:  # the PyBullet swarm is not part of this checkout
     SIMULATORS = ["pointmass"]
 
@@ -198,7 +198,7 @@ def test_arming_refuses_drones_standing_too_close(lab, policy_path):
 
 def test_command_line_rehearsal_and_bad_faults(lab, policy_path, tmp_path, capsys):
     config = tmp_path / "lab.yaml"
-    config.write_text(EXAMPLE_CONFIG.read_text().replace("simulator: pybullet", "simulator: pointmass"))
+    config.write_text(EXAMPLE_CONFIG.read_text().replace("simulator: crazyflie", "simulator: pointmass"))
     args = ["deploy", "--sim", "--config", str(config), "--policy", str(policy_path)]
     png = tmp_path / "fig7.png"
     assert main([*args, "--log", str(tmp_path / "a.jsonl"), "--plot", str(png)]) == 0
@@ -240,7 +240,7 @@ def test_arming_refuses_a_take_off_height_below_an_elevated_plate(lab, policy_pa
 @pytest.fixture
 def pointmass_config(tmp_path) -> Path:
     config = tmp_path / "lab.yaml"
-    config.write_text(EXAMPLE_CONFIG.read_text().replace("simulator: pybullet", "simulator: pointmass"))
+    config.write_text(EXAMPLE_CONFIG.read_text().replace("simulator: crazyflie", "simulator: pointmass"))
     return config
 
 
@@ -338,8 +338,8 @@ def test_an_existing_log_needs_force(pointmass_config, policy_path, tmp_path, ca
     assert "exists already" in capsys.readouterr().err
 
 
-@pytest.mark.skipif("pybullet" not in SIMULATORS, reason="needs the PyBullet swarm")
-def test_the_pybullet_rehearsal_flies_through_the_firmware_tracker(lab, policy_path):
+@pytest.mark.skipif("crazyflie" not in SIMULATORS, reason="needs the PyBullet swarm")
+def test_the_crazyflie_rehearsal_flies_through_the_firmware_tracker(lab, policy_path):
     """What runs on the drone by default; the simulator's PID on request, whatever the lab config says."""
     import inspect
 
@@ -347,15 +347,16 @@ def test_the_pybullet_rehearsal_flies_through_the_firmware_tracker(lab, policy_p
 
     if "controller" not in inspect.signature(CrazyflieSwarm).parameters:
         pytest.skip("this PyBullet swarm has no firmware tracker")
-    sim = make_simulator(lab, "pybullet")
+    sim = make_simulator(lab, "crazyflie")
     assert sim.controller_kind == "firmware"
     sim.close()
-    sim = make_simulator(lab, "pybullet", controller="pid")
-    assert sim.controller_kind == "pid"
+    with pytest.warns(FutureWarning, match="'pybullet' is the old name .* write 'crazyflie'"):
+        sim = make_simulator(lab, "pybullet", controller="pid")  # the name before the simulator registry
+    assert isinstance(sim, CrazyflieSwarm) and sim.controller_kind == "pid"
     sim.close()
     with pytest.raises(ValueError, match="Unknown controller"):
-        make_simulator(lab, "pybullet", controller="lqr")
-    result = rehearse(lab, policy_path, simulator="pybullet", controller="pid")
+        make_simulator(lab, "crazyflie", controller="lqr")
+    result = rehearse(lab, policy_path, simulator="crazyflie", controller="pid")
     assert result.mission.success and result.safe, result.summary()
 
 
@@ -370,13 +371,13 @@ def test_drones_start_clear_of_everywhere_a_moving_plate_goes(lab):
         assert gaps.min() >= 0.8, (seed, gaps.min())
 
 
-@pytest.mark.skipif("pybullet" not in SIMULATORS, reason="needs the PyBullet swarm")
+@pytest.mark.skipif("crazyflie" not in SIMULATORS, reason="needs the PyBullet swarm")
 def test_a_drone_resting_on_a_moving_plate_next_to_its_pad_rides_along(lab):
     """PyBullet calls a drone touching the plate next to its pad "other contact"; it must still ride along."""
     moving = lab.replace(
-        simulation=SimulationConfig(simulator="pybullet", platform="moving-linear", platform_speed=0.3)
+        simulation=SimulationConfig(simulator="crazyflie", platform="moving-linear", platform_speed=0.3)
     )
-    world = SimulatedWorld(moving, make_simulator(moving, "pybullet"), seed=0)
+    world = SimulatedWorld(moving, make_simulator(moving, "crazyflie"), seed=0)
     pads = world.pad_positions()
     start = pads + np.array([0.0, 0.0, world.sim.task.landed_height])
     start[0, 1] += 0.17  # cf1 on the plate, off its pad (radius 0.1), motors off: a crash next to it

@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 
 from marlander_lite.deploy.config import EXAMPLE_CONFIG, GeofenceConfig, LabConfig, SimulationConfig, load_lab_config
-from marlander_lite.deploy.faults import FaultSpec
 from marlander_lite.deploy.rehearsal import rehearse
+from marlander_lite.deploy.rehearsal.faults import FaultSpec
 from marlander_lite.deploy.safety import (
     BRAKE_DECELERATION,
     FIRMWARE_BRAKE_DECELERATION,
@@ -36,7 +36,7 @@ from marlander_lite.deploy.schema import ConfigError
 try:
     import marlander_lite.crazyflie.simulator  # noqa: F401
 
-    SIMULATORS = ["pointmass", "pybullet"]
+    SIMULATORS = ["pointmass", "crazyflie"]
 except ImportError:  # the PyBullet swarm is not part of this checkout
     SIMULATORS = ["pointmass"]
 

@@ -159,7 +159,7 @@ def _check_ticks(path: Path, result) -> None:
 @pytest.mark.parametrize("k", [0, 1, 30, 49, 50, 51, 120, 170, 171, 172, 173, 200, 260])
 def test_ctrl_c_at_any_tick_logs_each_tick_once(k, lab, tmp_path, monkeypatch):
     """Ctrl-C right after tick k's record was written (pre-flight, take-off, policy, landing ticks)."""
-    from marlander_lite.deploy import rehearsal
+    from marlander_lite.deploy.rehearsal import run as rehearsal
 
     policy = load_policy(POLICY, lab.task_config())
     monkeypatch.setattr(rehearsal, "FlightLogWriter", lambda path, header, overwrite: Interrupting(path, header, k))
@@ -171,7 +171,7 @@ def test_ctrl_c_at_any_tick_logs_each_tick_once(k, lab, tmp_path, monkeypatch):
 
 @pytest.mark.parametrize("k", [0, 60, 150, 171])
 def test_ctrl_c_at_the_start_of_a_tick_logs_each_tick_once(k, lab, tmp_path, monkeypatch):
-    from marlander_lite.deploy import rehearsal
+    from marlander_lite.deploy.rehearsal import run as rehearsal
 
     policy = load_policy(POLICY, lab.task_config())
     original = rehearsal._FirmwareEvents
@@ -217,8 +217,8 @@ def test_a_signal_in_the_same_tick_as_another_landing_request_is_logged(lab, hov
 def test_a_signal_before_take_off_stops_cleanly(tmp_path, monkeypatch, hover_policy, capsys):
     """SIGTERM while the radios connect: nothing flies yet; the command unwinds (links and world closed)."""
     from marlander_lite.cli import main
-    from marlander_lite.deploy import rehearsal
     from marlander_lite.deploy.link import CrazyflieLink
+    from marlander_lite.deploy.rehearsal import run as rehearsal
 
     opened = CrazyflieLink.open
 
@@ -229,7 +229,7 @@ def test_a_signal_before_take_off_stops_cleanly(tmp_path, monkeypatch, hover_pol
 
     monkeypatch.setattr(rehearsal.CrazyflieLink, "open", open_then_term)
     config = tmp_path / "lab.yaml"
-    config.write_text(EXAMPLE_CONFIG.read_text().replace("simulator: pybullet", "simulator: pointmass"))
+    config.write_text(EXAMPLE_CONFIG.read_text().replace("simulator: crazyflie", "simulator: pointmass"))
     before = signal.getsignal(signal.SIGTERM)
     args = ["deploy", "--sim", "--config", str(config), "--policy", str(hover_policy)]
     assert main([*args, "--log", str(tmp_path / "log.jsonl")]) == 128 + signal.SIGTERM

@@ -341,7 +341,7 @@ def test_a_folder_in_use_is_refused_and_a_stale_lock_taken_over(tmp_path, capsys
     with pytest.raises(SystemExit) as exit_info:
         main([*SMALL, "--no-figures", "--out", str(out)])
     assert exit_info.value.code == 2
-    assert f"in use by another 'marlander reproduce' (PID {os.getpid()}" in capsys.readouterr().err
+    assert f"in use by another marlander command (PID {os.getpid()}" in capsys.readouterr().err
     assert not (out / "trials.csv").exists()
 
     dead = subprocess.Popen([sys.executable, "-c", "pass"])

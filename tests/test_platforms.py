@@ -102,3 +102,144 @@ def test_a_speed_range_draws_one_speed_per_episode():
     np.testing.assert_allclose(top, motion.speed)
     with pytest.raises(ValueError, match="low <= high"):
         PlatformConfig(kind="moving-arc", speed=(0.5, 0.2))
+
+
+# ---------------------------------------------------------------------------- layouts for N drones (issue 13)
+
+
+def test_line_and_ring_layouts_worked_by_hand():
+    line = PlateGeometry(layout="line")
+    np.testing.assert_allclose(line.pad_offsets(3)[:, :2], [[-0.25, 0], [0, 0], [0.25, 0]])
+    assert line.half_extents(3) == (0.375, 0.25)  # 3 x 0.25 m long, the paper's 0.5 m wide
+    ring = PlateGeometry(layout="ring")
+    r = 0.25 / (2 * math.sin(math.pi / 4))  # square of side 0.25: circumradius 0.177 m
+    np.testing.assert_allclose(ring.pad_offsets(4)[:, :2], [[r, 0], [0, r], [-r, 0], [0, -r]], atol=1e-15)
+    assert ring.half_extents(4)[0] == pytest.approx(r + 0.125)
+
+
+@pytest.mark.parametrize("layout", ["grid", "line", "ring"])
+@pytest.mark.parametrize("n", [1, 2, 3, 8, 16])
+def test_every_layout_keeps_pads_apart_and_on_the_plate(layout, n):
+    g = PlateGeometry(layout=layout, pad_spacing=0.3)
+    offsets = g.pad_offsets(n)
+    assert offsets.shape == (n, 3) and np.allclose(offsets[:, 2], g.pad_thickness)
+    if n > 1:
+        gaps = np.linalg.norm(offsets[:, None, :2] - offsets[None, :, :2], axis=-1) + np.eye(n) * 9
+        assert gaps.min() == pytest.approx(0.3)  # neighbours exactly one spacing apart, none closer
+    hx, hy = g.half_extents(n)
+    assert (np.abs(offsets[:, 0]) + g.pad_radius <= hx + 1e-12).all()
+    assert (np.abs(offsets[:, 1]) + g.pad_radius <= hy + 1e-12).all()
+
+
+def test_the_default_grid_is_unchanged_and_a_bigger_plate_keeps_its_pads():
+    old = {2: [[-0.125, 0], [0.125, 0]], 3: [[-0.125, -0.125], [0.125, -0.125], [-0.125, 0.125]]}
+    for n, xy in old.items():
+        np.testing.assert_array_equal(PlateGeometry(layout="grid").pad_offsets(n)[:, :2], xy)
+    # 8 drones on a 16-pad plate use its first 8 pads; the plate is sized for all 16.
+    plate16 = PlateGeometry(num_pads=16)
+    np.testing.assert_array_equal(plate16.pad_offsets(8), PlateGeometry().pad_offsets(16)[:8])
+    assert plate16.half_extents(8) == (0.5, 0.5)
+
+
+@pytest.mark.parametrize(
+    ("make", "match"),
+    [
+        (lambda: PlateGeometry().pad_offsets(0), "num_drones must be an integer >= 1, got 0"),
+        (lambda: PlateGeometry(num_pads=4).pad_offsets(5), "More drones than pads: 5 drones but the plate has 4"),
+        (lambda: PlatformMotion(PlatformConfig(geometry=PlateGeometry(num_pads=2)), 1, 3, 2.0), "More drones"),
+        (lambda: PlateGeometry(pad_spacing=0.15), r"Pads overlap: pad_spacing 0.15 m is less than twice"),
+        (lambda: PlateGeometry(inclination_deg=90), r"inclination_deg must be in \[0, 90\)"),
+        (lambda: PlateGeometry(inclination_deg=-5), r"inclination_deg must be in \[0, 90\)"),
+        (lambda: PlateGeometry(layout="star"), "allowed: grid, line, ring"),  # type: ignore[arg-type]
+        (lambda: PlateGeometry(num_pads=0), "num_pads must be None"),
+        (lambda: PlateGeometry(pad_radius=float("nan")), "finite numbers > 0"),
+    ],
+)
+def test_bad_plates_say_what_is_allowed(make, match):
+    with pytest.raises(ValueError, match=match):
+        make()
+
+
+def test_an_inclined_plate_turns_its_pads_and_normal_about_the_tilt_axis():
+    level, tilted = PlateGeometry(), PlateGeometry(inclination_deg=15.0)  # about +x: the +y edge rises
+    s, c = math.sin(math.radians(15)), math.cos(math.radians(15))
+    np.testing.assert_allclose(tilted.normal(), [0, -s, c])
+    np.testing.assert_array_equal(level.normal(), [0, 0, 1])
+    rot = tilted.rotation()
+    np.testing.assert_allclose(rot @ rot.T, np.eye(3), atol=1e-15)
+    # Pads on the x axis stay put apart from their thickness turning with the plate; distances are kept.
+    np.testing.assert_allclose(
+        tilted.pad_offsets(2), [[-0.125, -0.0025 * s, 0.0025 * c], [0.125, -0.0025 * s, 0.0025 * c]]
+    )
+    four = tilted.pad_offsets(4)
+    assert four[2, 2] - four[0, 2] == pytest.approx(0.25 * s)  # the +y row sits 0.25 sin(15 deg) higher
+    np.testing.assert_allclose(
+        np.linalg.norm(four[0] - four[3]), np.linalg.norm(level.pad_offsets(4)[0] - level.pad_offsets(4)[3])
+    )
+    # A tilted plate on the floor is raised so its lowest corner stays on the floor.
+    motion = PlatformMotion(PlatformConfig(geometry=tilted), 3, 4, 2.0)
+    motion.sample(np.random.default_rng(0), np.arange(3))
+    _, hy = tilted.half_extents(4)
+    assert motion.anchor[0, 2] - hy * s == pytest.approx(tilted.plate_thickness)
+    np.testing.assert_allclose(motion.pad_normal, tilted.normal())
+
+
+@pytest.mark.parametrize("kind", ["moving-linear", "moving-arc"])
+def test_ur10_tool_speeds_up_to_one_metre_per_second_are_accepted(kind):
+    cfg = PlatformConfig(kind=kind, speed=1.0)
+    motion = PlatformMotion(cfg, 16, 2, 2.0)
+    motion.sample(np.random.default_rng(0), np.arange(16))
+    top = max(np.linalg.norm(motion.state(np.full(16, t))[1], axis=1).max() for t in np.arange(0, 8, 0.01))
+    assert top == pytest.approx(1.0, abs=0.01)  # the 1 m stroke at 1 m/s^2 just reaches 1 m/s
+    assert PlatformConfig(kind=kind, speed=(0.0, 1.0)).speed_range == (0.0, 1.0)
+
+
+def test_point_mass_drones_touch_an_inclined_plate_where_its_tilted_top_face_is():
+    from marlander_lite.episodes import LandingEpisodes
+    from marlander_lite.pointmass.simulator import PointMassSwarm
+    from marlander_lite.task import CONTACT_OTHER, CONTACT_OWN_PAD, TaskConfig, pad_frame_errors
+
+    tilt = 15.0
+    s, c = math.sin(math.radians(tilt)), math.cos(math.radians(tilt))
+    geometry = PlateGeometry(inclination_deg=tilt)  # about +x: the +y edge rises
+    episodes = LandingEpisodes(PointMassSwarm(TaskConfig(num_drones=2), PlatformConfig(geometry=geometry), 1), seed=0)
+    episodes.reset()
+    state = episodes.sim.state()
+    plate = episodes.sim.motion.anchor[0]
+    lift = geometry.pad_thickness + episodes.task.landed_height
+    # Drone 0 sinks onto its own pad; drone 1 onto the plate 0.2 m up the slope (plate frame y = +0.2), off its pad.
+    up_slope = plate + 0.2 * geometry.rotation()[:, 1]
+    above = np.array([0.0, 0.0, 0.05])
+    start = np.array([state.pad_pos[0, 0] + above, up_slope + above])
+    episodes.sim.place(0, start)
+    sink = np.array([[[0.0, 0.0, -0.1], [0.0, 0.0, -0.1]]])  # 0.3 m/s down
+    touched = {}
+    for _ in range(20):
+        out = episodes.step(sink)
+        for i in range(2):
+            if out.landed_now[0, i] or out.crashed[0, i]:
+                touched.setdefault(i, (episodes.sim.pos[0, i].copy(), int(episodes.sim.contact[0, i])))
+        if len(touched) == 2:
+            break
+    pad = state.pad_pos[0, 0]
+    # On the pad (whose top face is pad_thickness above the plate's, along the normal) the centre rests
+    # landed_height along the normal above it: straight down onto the tilted face, landed_height / cos(tilt) higher.
+    rest = episodes.task.landed_height
+    assert touched[0][1] == CONTACT_OWN_PAD and bool(out.landed[0, 0])
+    assert touched[0][0][2] == pytest.approx(pad[2] + rest / c, abs=1e-9)
+    # Up the slope the plate is 0.2 sin(tilt) = 5.2 cm higher than at its centre: drone 1 touches there and crashes.
+    assert touched[1][1] == CONTACT_OTHER
+    assert touched[1][0][2] == pytest.approx(up_slope[2] + lift / c, abs=1e-9)
+    # In the pad frame drone 0, straight above the pad centre, sits landed_height along the normal, rest tan(tilt) off.
+    height, offset = pad_frame_errors(touched[0][0] - pad, geometry.normal())
+    assert height == pytest.approx(rest, abs=1e-9) and offset == pytest.approx(rest * s / c, abs=1e-9)
+
+
+def test_pad_frame_errors_worked_by_hand():
+    from marlander_lite.task import pad_frame_errors
+
+    height, offset = pad_frame_errors(np.array([[0.03, 0.04, 0.5]]), np.array([0.0, 0.0, 1.0]))
+    assert height[0] == pytest.approx(0.5) and offset[0] == pytest.approx(0.05)  # level: z and horizontal distance
+    n = np.array([0.0, -math.sin(0.3), math.cos(0.3)])
+    height, offset = pad_frame_errors(0.2 * n + np.array([0.01, 0.0, 0.0]), n)
+    assert height == pytest.approx(0.2) and offset == pytest.approx(0.01)

@@ -276,6 +276,8 @@ def test_vec_env_trains_with_sb3_ppo():
         ({"wind": 3.0}, TypeError, "allowed options"),
         ({"task": {"gamma": 0.9}}, TypeError, "allowed"),
         ({"sensing": "optitrack"}, ValueError, "vicon"),
+        ({"dynamics": {"tau": 0.1}}, TypeError, r"\['tau'\]; allowed options: velocity_time_constant"),
+        ({"options": marlander_lite.EnvOptions(), "physics": "bare"}, TypeError, "allowed options: .*dynamics"),
     ],
 )
 def test_bad_env_options_raise_clear_errors(kwargs, error, message):

@@ -212,3 +212,66 @@ def test_save_policy_refuses_a_contract_no_reader_would_accept(tmp_path):
     contract = PolicyContract(**{**small_contract(), "hidden_sizes": (8,), "activation": "gelu"})
     with pytest.raises(PolicyFileError, match="activation"):
         save_policy(tmp_path / "p.safetensors", contract, small_tensors())
+
+
+# ---------------------------------------------------------------------------- shared (N-free) policies, issue 13
+
+
+def shared_tensors(neighbours: int = 2) -> dict:
+    """A valid shared policy's tensors: input 13 + 7 k, one hidden layer of 8, output 3."""
+    size = 13 + 7 * neighbours
+    return small_tensors(
+        **{
+            "actor.0.weight": np.random.default_rng(1).normal(size=(8, size)),
+            "actor.1.weight": np.random.default_rng(2).normal(size=(3, 8)),
+            "actor.1.bias": np.zeros(3),
+            "obs_mean": np.zeros(size),
+            "obs_var": np.ones(size),
+        }
+    )
+
+
+def test_a_shared_policy_declares_itself_n_free_and_fits_any_swarm(tmp_path):
+    path = write_raw(tmp_path / "shared.safetensors", small_contract(num_drones=None, neighbours=2), shared_tensors())
+    contract = read_contract(path)
+    assert contract.is_shared and contract.num_drones is None
+    assert (contract.obs_dim, contract.act_dim) == (27, 3)
+    for n in (1, 2, 16):
+        policy = load_policy(path, TaskConfig(num_drones=n), shared=True)
+        assert policy.act(np.zeros((n, 27))).shape == (n, 3)
+    # Each kind is refused where the other is expected, saying what to use instead.
+    with pytest.raises(PolicyFileError, match=r"it is a shared policy \(N-free, 2 neighbours\).*SharedPolicy"):
+        load_policy(path, TaskConfig(num_drones=2))
+    centralised = write_raw(tmp_path / "central.safetensors", small_contract(), small_tensors())
+    with pytest.raises(PolicyFileError, match=r"it is a centralised policy.*shared-quick"):
+        load_policy(centralised, TaskConfig(num_drones=2), shared=True)
+    with pytest.raises(PolicyFileError, match="max_speed"):
+        load_policy(path, TaskConfig(num_drones=4, max_speed=1.0), shared=True)
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"num_drones": 2, "neighbours": 2}, r"a shared policy \(neighbours=2\).*num_drones must be null, got 2"),
+        ({"num_drones": None}, "num_drones is null but neighbours is not set"),
+        ({"num_drones": None, "neighbours": 0}, r"neighbours: Input should be greater than or equal to 1"),
+        ({"num_drones": None, "neighbours": "2"}, r"neighbours: Input should be a valid integer"),
+        ({"num_drones": None, "neighbours": True}, r"neighbours: Input should be a valid integer"),
+        ({"neighbour_radius": 0.2}, "neighbour_radius is set but neighbours is not"),
+        ({"num_drones": None, "neighbours": 2, "neighbour_radius": 0.0}, r"neighbour_radius: Input should be greater"),
+        (
+            {"num_drones": None, "neighbours": 2, "neighbour_radius": "0.2"},
+            r"neighbour_radius: Input should be a valid",
+        ),
+    ],
+)
+def test_mixed_up_shared_contracts_are_refused(tmp_path, changes, message):
+    path = write_raw(tmp_path / "bad.safetensors", small_contract(**changes), shared_tensors())
+    with pytest.raises(PolicyFileError, match=message):
+        load_policy(path)
+
+
+def test_a_shared_policy_with_the_wrong_neighbour_count_is_refused(tmp_path):
+    path = write_raw(tmp_path / "bad.safetensors", small_contract(num_drones=None, neighbours=3), shared_tensors(2))
+    with pytest.raises(PolicyFileError, match=r"layers 34 -> 8 -> 3.*actor.0.weight has shape \[8, 27\]"):
+        load_policy(path)

@@ -1,4 +1,4 @@
-"""The MDP of the paper (eqs. 2-6) against values worked by hand."""
+"""The MDP of the paper (eqs. 2-6) against values worked by hand, and the simulators' fast layout against it."""
 
 import math
 
@@ -6,6 +6,9 @@ import numpy as np
 import pytest
 
 from marlander_lite import task
+from marlander_lite.episodes import LandingEpisodes
+from marlander_lite.platforms import PlatformConfig
+from marlander_lite.pointmass import PointMassSwarm
 from marlander_lite.task import CONTACT_NONE, CONTACT_OTHER, CONTACT_OWN_PAD, TaskConfig
 
 CFG = TaskConfig()  # alpha 10, beta -0.02, c 10, alpha_c 20, K 20
@@ -37,6 +40,66 @@ def test_observation_is_clipped_to_its_limits():
     p_max, _, v_max, w_max = task.OBS_LIMITS
     assert obs[0, 0] == p_max and obs[0, 1] == -p_max
     assert obs[0, 7] == v_max and obs[0, 10] == w_max
+
+
+def eq2_drone_by_drone(rel_pos, quat, rel_vel, ang_vel) -> np.ndarray:
+    """Eq. 2 written element by element in Python floats: an independent reference for task.observe."""
+    p_max, _, v_max, w_max = task.OBS_LIMITS
+
+    def clip(x, limit):
+        return [min(max(float(c), -limit), limit) for c in x]
+
+    rows = [
+        clip(p, p_max) + [float(c) for c in q] + clip(v, v_max) + clip(w, w_max)
+        for p, q, v, w in zip(*(a.reshape(-1, a.shape[-1]) for a in (rel_pos, quat, rel_vel, ang_vel)), strict=True)
+    ]
+    return np.array(rows).reshape(*rel_pos.shape[:-1], task.OBS_PER_DRONE)
+
+
+@pytest.mark.parametrize("order", ["C", "F"])
+def test_observation_equals_the_elementwise_reference_in_any_memory_layout(order):
+    rng = np.random.default_rng(2)
+    scales = ((30, 3), (1, 4), (80, 3), (300, 3))  # beyond the limits of p, v and omega
+    parts = [np.asarray(rng.normal(0, scale, (6, 3, k)), order=order) for scale, k in scales]
+    np.testing.assert_array_equal(task.observe(*parts), eq2_drone_by_drone(*parts))
+
+
+def test_point_mass_observations_are_eq2_of_its_state_to_the_last_bit():
+    """The point mass keeps its state in Fortran order (its fast layout); eq. 2 of that state must be bit for
+    bit the observation built from each drone's numbers one at a time."""
+    sim = PointMassSwarm(TaskConfig(num_drones=3), PlatformConfig(kind="moving-arc"), num_envs=5)
+    episodes = LandingEpisodes(sim, seed=4)
+    episodes.reset()
+    rng = np.random.default_rng(4)
+    for _ in range(5):
+        outcome = episodes.step(rng.uniform(-1, 1, (5, 9)))
+        s = sim.state()
+        assert s.pos.flags.f_contiguous  # the fast layout this test is about
+        rel_pos = s.pos - (s.pad_pos + np.array([0.0, 0.0, sim.task.landed_height]))
+        expected = eq2_drone_by_drone(rel_pos, s.quat, s.vel - s.pad_vel, s.ang_vel)
+        np.testing.assert_array_equal(outcome.obs, expected)
+
+
+def test_point_mass_steps_identically_from_row_major_and_fortran_commands():
+    """task.action_to_velocity returns row-major commands and the point mass copies them into its own layout;
+    the layout must not change a single bit of the flight."""
+    sims = [PointMassSwarm(TaskConfig(num_drones=2), PlatformConfig(kind="moving-linear"), num_envs=7) for _ in "CF"]
+    for sim in sims:
+        sim.reset(np.arange(7), np.random.default_rng(5))
+    rng = np.random.default_rng(6)
+    for _ in range(20):
+        velocity = task.action_to_velocity(rng.uniform(-1.5, 1.5, (7, 6)), 2, 3.0)
+        sims[0].step(np.ascontiguousarray(velocity))
+        sims[1].step(np.asfortranarray(velocity))
+        for name in ("pos", "vel", "quat", "ang_vel", "contact"):
+            np.testing.assert_array_equal(getattr(sims[0], name), getattr(sims[1], name))
+
+
+def test_action_to_velocity_equals_the_elementwise_reference():
+    rng = np.random.default_rng(3)
+    action = rng.normal(0, 1.5, (4, 2, 3)).astype(np.float32)
+    expected = [3.0 * min(max(float(a), -1.0), 1.0) for a in action.ravel()]
+    np.testing.assert_array_equal(task.action_to_velocity(action, 2, 3.0).ravel(), expected)
 
 
 def test_action_scaling_clipping_and_shapes():

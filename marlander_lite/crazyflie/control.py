@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from marlander_lite.crazyflie.params import CF2XParams
+from marlander_lite.rotations import RotationRows, world_to_body
 
 Triple = tuple[float, float, float]
 
@@ -106,26 +107,6 @@ def mixer_matrix(params: CF2XParams) -> np.ndarray:
     return np.column_stack((0.5 * np.sign(xy[:, 1]), -0.5 * np.sign(xy[:, 0]), np.asarray(params.yaw_signs)))
 
 
-Rotation = tuple[float, float, float, float, float, float, float, float, float]
-"""A rotation matrix as 9 floats, row by row: ``(r00, r01, r02, r10, ..., r22)``, body to world."""
-
-
-def rotation_matrix(quat: Sequence[float]) -> Rotation:
-    """Rotation matrix (body to world) of a unit quaternion ``(x, y, z, w)``, row by row."""
-    x, y, z, w = quat
-    return (
-        1.0 - 2.0 * (y * y + z * z),
-        2.0 * (x * y - z * w),
-        2.0 * (x * z + y * w),
-        2.0 * (x * y + z * w),
-        1.0 - 2.0 * (x * x + z * z),
-        2.0 * (y * z - x * w),
-        2.0 * (x * z - y * w),
-        2.0 * (y * z + x * w),
-        1.0 - 2.0 * (x * x + y * y),
-    )
-
-
 class CascadedPID:
     """The three-stage controller for ``num_drones`` drones, stepped every ``dt`` seconds.
 
@@ -166,7 +147,7 @@ class CascadedPID:
         self,
         i: int,
         pos: Sequence[float],
-        rot: Rotation,
+        rot: RotationRows,
         vel: Sequence[float],
         ang_vel: Sequence[float],
         target_pos: Sequence[float],
@@ -177,7 +158,7 @@ class CascadedPID:
         Args:
             i: drone index (selects its integrators).
             pos, vel, ang_vel: position (m), velocity (m/s), angular velocity (rad/s), world frame.
-            rot: its rotation matrix, :func:`rotation_matrix`.
+            rot: its rotation matrix, :func:`~marlander_lite.rotations.quat_to_matrix_rows`.
             target_pos, target_vel: where the drone should be (m) and how fast it should move (m/s).
         """
         p, dt = self.params, self.dt
@@ -212,8 +193,7 @@ class CascadedPID:
             (xx * r02 + xy * r12 + xz * r22) - (zx * r00 + zy * r10 + zz * r20),
             (yy * r10 + yz * r20) - (xx * r01 + xy * r11 + xz * r21),
         )
-        wx, wy, wz = ang_vel
-        w_body = (r00 * wx + r10 * wy + r20 * wz, r01 * wx + r11 * wy + r21 * wz, r02 * wx + r12 * wy + r22 * wz)
+        w_body = world_to_body(rot, ang_vel)
         att = self.att_integral[i]
         limit_t, max_rate = self.gains.torque_limit, self.gains.max_body_rate
         torque = [0.0, 0.0, 0.0]

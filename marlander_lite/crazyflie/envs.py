@@ -1,9 +1,10 @@
-"""The PyBullet simulator's three faces: gymnasium, a stable-baselines3 ``VecEnv``, PettingZoo."""
+"""The PyBullet simulator's options and three faces: gymnasium, a stable-baselines3 ``VecEnv``, PettingZoo."""
 
 from __future__ import annotations
 
 import os
 from collections.abc import Mapping
+from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 from typing import Any, ClassVar, Literal, get_args
@@ -17,53 +18,95 @@ from marlander_lite.crazyflie.params import CF2XParams, PhysicsConfig, build_phy
 from marlander_lite.crazyflie.perturb import Controller, Perturbation, build_perturbation, check_controller
 from marlander_lite.crazyflie.simulator import CrazyflieSwarm
 from marlander_lite.envs.gym_env import SwarmLandingEnv
-from marlander_lite.envs.options import COMMON_OPTIONS, build_configs, check_num_envs, reject_unknown
+from marlander_lite.envs.options import EnvOptions, check_num_envs
 from marlander_lite.envs.parallel_env import SwarmParallelEnv
 from marlander_lite.envs.vec_env import LandingVecEnv
-from marlander_lite.platforms import PlatformConfig
 from marlander_lite.sensing import SensingConfig
-from marlander_lite.task import TaskConfig
 
-CRAZYFLIE_OPTIONS = (*COMMON_OPTIONS, "physics", "drone", "gains", "gui", "controller", "perturbation")
-"""Keyword options of every PyBullet face; the gymnasium env also takes ``render_mode`` and ``video_path``."""
 RenderMode = Literal["rgb_array", "human"]
 RENDER_MODES: tuple[str, ...] = ("rgb_array", "human")
 FRAME_SIZE = (480, 360)
 """Width and height (pixels) of ``rgb_array`` frames and recorded videos."""
 
 
-def build_simulator(
-    num_drones: int = 2,
-    platform: str | PlatformConfig = "static-floor",
-    platform_speed: float | tuple[float, float] | None = None,
-    task: TaskConfig | Mapping[str, Any] | None = None,
-    sensing: SensingConfig | str | None = None,
-    physics: PhysicsConfig | Mapping[str, Any] | str | None = None,
-    drone: CF2XParams | None = None,
-    gains: PIDGains | None = None,
-    gui: bool = False,
-    controller: Controller = "pid",
-    perturbation: Perturbation | Mapping[str, Any] | None = None,
-) -> tuple[CrazyflieSwarm, SensingConfig]:
-    """Validate the options (see :class:`CrazyflieLandingEnv`) and build the simulator."""
-    task_config, platform_config, sensing_config = build_configs(num_drones, platform, platform_speed, task, sensing)
-    if drone is not None and not isinstance(drone, CF2XParams):
-        raise TypeError(f"drone must be a CF2XParams, got {type(drone).__name__}.")
-    if gains is not None and not isinstance(gains, PIDGains):
-        raise TypeError(f"gains must be a PIDGains, got {type(gains).__name__}.")
-    check_controller(controller)
-    simulator = CrazyflieSwarm(
-        task_config,
-        platform_config,
-        1,
-        build_physics(physics),
-        drone,
-        gains,
-        bool(gui),
-        controller=controller,
-        perturbation=build_perturbation(perturbation),
-    )
-    return simulator, sensing_config
+@dataclass(frozen=True)
+class CrazyflieOptions(EnvOptions):
+    """The options of the PyBullet envs: the common :class:`~marlander_lite.envs.options.EnvOptions`, the
+    physics, the drone, and the velocity tracker that flies it.
+
+    ``gui``, ``render_mode`` and ``video_path`` are not options of the task but of one face (a window or a
+    video of one world), so they are keywords of :class:`CrazyflieLandingEnv` (and ``gui`` of
+    :func:`crazyflie_parallel_env`).
+    """
+
+    physics: PhysicsConfig | Mapping[str, Any] | str | None = None
+    """A :class:`PhysicsConfig`, a preset name (``"aero"``, the default: ground effect, drag, downwash;
+    ``"bare"``: rigid body and motors only), or a mapping of its fields (``{"control_hz": 30}``)."""
+    drone: CF2XParams | None = None
+    """The airframe (:class:`CF2XParams`); ``None``: the Crazyflie 2.x."""
+    gains: PIDGains | None = None
+    """Gains of the ``"pid"`` tracker (:class:`PIDGains`); ``None``: its defaults."""
+    controller: Controller = "pid"
+    """The velocity tracker: ``"pid"`` (our cascaded PID at 48 Hz, chasing ``p + u dt`` and ``u``) or
+    ``"firmware"`` (the Crazyflie firmware's velocity PID, :mod:`marlander_lite.crazyflie.firmware`)."""
+    perturbation: Perturbation | Mapping[str, Any] | None = None
+    """How the drone differs from the one its tracker was tuned for (:class:`Perturbation` or a mapping of
+    its fields, e.g. ``{"mass_scale": 1.15, "latency_s": 0.06}``); ``None``: not at all."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.drone is not None and not isinstance(self.drone, CF2XParams):
+            raise TypeError(f"drone must be a CF2XParams, got {type(self.drone).__name__}.")
+        if self.gains is not None and not isinstance(self.gains, PIDGains):
+            raise TypeError(f"gains must be a PIDGains, got {type(self.gains).__name__}.")
+        check_controller(self.controller)
+        _ = (self.physics_config, self.perturbation_config)
+
+    @property
+    def physics_config(self) -> PhysicsConfig:
+        """``physics`` as a :class:`PhysicsConfig`."""
+        return build_physics(self.physics)
+
+    @property
+    def perturbation_config(self) -> Perturbation:
+        """``perturbation`` as a :class:`Perturbation`."""
+        return build_perturbation(self.perturbation)
+
+    def make_simulator(self, num_envs: int = 1, gui: bool = False) -> CrazyflieSwarm | CrazyflieBatch:
+        """One PyBullet world (``num_envs=1``, optionally in a ``gui`` window), or a batch of them in this process."""
+        if num_envs == 1:
+            return CrazyflieSwarm(
+                self.task_config,
+                self.platform_config,
+                1,
+                self.physics_config,
+                self.drone,
+                self.gains,
+                bool(gui),
+                controller=self.controller,
+                perturbation=self.perturbation_config,
+            )
+        if gui:
+            raise ValueError("gui opens one PyBullet window: build one world (num_envs=1) to watch it.")
+        return self.make_batch(num_envs)
+
+    def make_batch(self, num_envs: int) -> CrazyflieBatch:
+        """``num_envs`` PyBullet worlds in this process behind one batched simulator."""
+        return CrazyflieBatch(
+            self.task_config,
+            self.platform_config,
+            num_envs,
+            self.physics_config,
+            self.drone,
+            self.gains,
+            controller=self.controller,
+            perturbation=self.perturbation_config,
+        )
+
+
+def build_simulator(**options: Any) -> tuple[CrazyflieSwarm | CrazyflieBatch, SensingConfig]:
+    """``(simulator, sensing)`` of one world from :class:`CrazyflieOptions` fields given as keywords."""
+    return CrazyflieOptions.from_keywords(options, where="crazyflie build_simulator").build()
 
 
 class CrazyflieLandingEnv(SwarmLandingEnv):
@@ -106,9 +149,10 @@ class CrazyflieLandingEnv(SwarmLandingEnv):
     ``episode_seconds`` (10 s, 240 steps at 24 Hz). A landed drone is latched to its pad.
 
     ## Arguments
-    ``gymnasium.make("marlander_lite/CrazyflieLanding-v0", num_drones=2, platform="static-floor",
-    platform_speed=None, task=None, sensing=None, physics=None, drone=None, gains=None, gui=False,
-    controller="pid", perturbation=None, render_mode=None, video_path=None)``: ``platform`` is one of
+    ``gymnasium.make("marlander_lite/CrazyflieLanding-v0", gui=False, render_mode=None, video_path=None,
+    **fields)`` with the fields of :class:`CrazyflieOptions` (``num_drones=2, platform="static-floor",
+    platform_speed=None, task=None, sensing=None, physics=None, drone=None, gains=None, controller="pid",
+    perturbation=None``), or ``options=CrazyflieOptions(...)``: ``platform`` is one of
     ``static-floor``, ``static-elevated``, ``moving-linear``, ``moving-arc``; ``platform_speed`` the moving
     tool speed (m/s, default 0.35); ``task`` a :class:`TaskConfig` or dict of fields to change
     (``policy_hz`` sets the action rate); ``sensing`` a :class:`SensingConfig` or ``"vicon"``; ``physics`` a
@@ -130,38 +174,18 @@ class CrazyflieLandingEnv(SwarmLandingEnv):
 
     def __init__(
         self,
-        num_drones: int = 2,
-        platform: str | PlatformConfig = "static-floor",
-        platform_speed: float | tuple[float, float] | None = None,
-        task: TaskConfig | dict | None = None,
-        sensing: SensingConfig | str | None = None,
-        physics: PhysicsConfig | dict | str | None = None,
-        drone: CF2XParams | None = None,
-        gains: PIDGains | None = None,
+        options: CrazyflieOptions | None = None,
+        *,
         gui: bool = False,
-        controller: Controller = "pid",
-        perturbation: Perturbation | Mapping[str, Any] | None = None,
         render_mode: RenderMode | None = None,
         video_path: str | os.PathLike | None = None,
-        **unknown: Any,
+        **fields: Any,
     ) -> None:
-        reject_unknown(unknown, (*CRAZYFLIE_OPTIONS, "render_mode", "video_path"), "CrazyflieLanding-v0")
+        face_keywords = ("gui", "render_mode", "video_path")
+        options = CrazyflieOptions.from_keywords(fields, options, "CrazyflieLanding-v0", face_keywords)
         if render_mode is not None and render_mode not in RENDER_MODES:
             raise ValueError(f"Unknown render_mode {render_mode!r}; allowed: None, {', '.join(RENDER_MODES)}.")
-        simulator, sensing_config = build_simulator(
-            num_drones,
-            platform,
-            platform_speed,
-            task,
-            sensing,
-            physics,
-            drone,
-            gains,
-            gui or render_mode == "human",
-            controller,
-            perturbation,
-        )
-        super().__init__(simulator, sensing_config)
+        super().__init__(options.make_simulator(1, gui=gui or render_mode == "human"), options.sensing_config)
         self.render_mode = render_mode
         self.metadata = {**self.metadata, "render_fps": self.task.policy_hz}
         self.video_path = None if video_path is None else Path(video_path)
@@ -215,18 +239,13 @@ class CrazyflieLandingEnv(SwarmLandingEnv):
         self._episode += 1
 
 
-def crazyflie_parallel_env(**options: Any) -> SwarmParallelEnv:
+def crazyflie_parallel_env(
+    options: CrazyflieOptions | None = None, *, gui: bool = False, **fields: Any
+) -> SwarmParallelEnv:
     """PettingZoo ``ParallelEnv`` of the PyBullet swarm, one agent per drone; options as :class:`CrazyflieLandingEnv`
     (except ``render_mode`` and ``video_path``)."""
-    reject_unknown(
-        {k: v for k, v in options.items() if k not in CRAZYFLIE_OPTIONS}, CRAZYFLIE_OPTIONS, "crazyflie_parallel_env"
-    )
-    simulator, sensing = build_simulator(**options)
-    return SwarmParallelEnv(simulator, sensing)
-
-
-def _make_env(options: dict[str, Any]) -> CrazyflieLandingEnv:
-    return CrazyflieLandingEnv(**options)
+    options = CrazyflieOptions.from_keywords(fields, options, "crazyflie_parallel_env", ("gui",))
+    return SwarmParallelEnv(options.make_simulator(1, gui=gui), options.sensing_config)
 
 
 Vectorization = Literal["batched", "subprocess"]
@@ -236,9 +255,11 @@ VECTORIZATIONS: tuple[str, ...] = get_args(Vectorization)
 def make_crazyflie_vec_env(
     num_envs: int = 1,
     seed: int | None = None,
+    options: CrazyflieOptions | None = None,
+    *,
     vectorization: Vectorization = "batched",
     start_method: str | None = None,
-    **options: Any,
+    **fields: Any,
 ) -> VecEnv:
     """``num_envs`` PyBullet swarms as one stable-baselines3 ``VecEnv``.
 
@@ -252,34 +273,19 @@ def make_crazyflie_vec_env(
 
     Either way the same seed gives the same rollouts, finished envs are reset at once (SB3
     convention, ``infos[i]["terminal_observation"]``), and the last step's info carries
-    ``is_success`` and ``episode``. Options are those of :class:`CrazyflieLandingEnv` except
-    ``gui``, ``render_mode`` and ``video_path`` (record a video with the single gymnasium env).
+    ``is_success`` and ``episode``. Options are :class:`CrazyflieOptions` (an object, or its fields as
+    keywords); ``gui``, ``render_mode`` and ``video_path`` are not taken (record a video with the single
+    gymnasium env).
     """
+    face_keywords = ("num_envs", "seed", "vectorization", "start_method")
+    # Check the options here, in this process, so that a bad one fails with its own message.
+    options = CrazyflieOptions.from_keywords(fields, options, "make_vec_env('crazyflie')", face_keywords)
     check_num_envs(num_envs)
     if vectorization not in VECTORIZATIONS:
         raise ValueError(f"Unknown vectorization {vectorization!r}; allowed: {', '.join(VECTORIZATIONS)}.")
-    allowed = (*COMMON_OPTIONS, "physics", "drone", "gains", "controller", "perturbation")
-    reject_unknown({k: v for k, v in options.items() if k not in allowed}, allowed, "make_vec_env('crazyflie')")
-    # Check the options here, in this process, so that a bad one fails with its own message.
-    task_config, platform_config, sensing_config = build_configs(
-        **{k: options[k] for k in COMMON_OPTIONS if k in options}
-    )
-    physics = build_physics(options.get("physics"))
-    controller = check_controller(options.get("controller", "pid"))
-    perturbation = build_perturbation(options.get("perturbation"))
     if vectorization == "batched":
-        batch = CrazyflieBatch(
-            task_config,
-            platform_config,
-            int(num_envs),
-            physics,
-            options.get("drone"),
-            options.get("gains"),
-            controller=controller,
-            perturbation=perturbation,
-        )
-        return LandingVecEnv(batch, sensing_config, seed)
-    makers = [partial(_make_env, dict(options)) for _ in range(int(num_envs))]
+        return LandingVecEnv(options.make_batch(int(num_envs)), options.sensing_config, seed)
+    makers = [partial(CrazyflieLandingEnv, options) for _ in range(int(num_envs))]
     vec = SubprocVecEnv(makers, start_method=start_method)
     if seed is not None:
         vec.seed(seed)

@@ -64,8 +64,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from marlander_lite.crazyflie.control import Rotation, check_gains, mixer_matrix
+from marlander_lite.crazyflie.control import check_gains, mixer_matrix
 from marlander_lite.crazyflie.params import CF2XParams
+from marlander_lite.rotations import RotationRows, euler_zyx, world_to_body
 
 Triple = tuple[float, float, float]
 INT16_MAX = 32767.0
@@ -269,7 +270,7 @@ class FirmwareTracker:
         self,
         i: int,
         pos: Sequence[float],
-        rot: Rotation,
+        rot: RotationRows,
         vel: Sequence[float],
         ang_vel: Sequence[float],
         target_pos: Sequence[float],
@@ -278,13 +279,12 @@ class FirmwareTracker:
         """One tick of drone ``i``: its four rotor speeds (RPM).
 
         ``pos`` and ``target_pos`` are ignored (the firmware tracks the velocity setpoint only);
-        ``rot`` is the body-to-world rotation (:func:`~marlander_lite.crazyflie.control.rotation_matrix`),
+        ``rot`` is the body-to-world rotation (:func:`~marlander_lite.rotations.quat_to_matrix_rows`),
         ``vel`` (m/s) and ``ang_vel`` (rad/s) are world frame, ``target_vel`` the setpoint (m/s).
         """
         g, p = self.gains, self.params
         velocity, attitude, rate = self._pids[i]
-        r00, r01, r02, r10, r11, r12, r20, r21, r22 = rot
-        yaw = math.atan2(r10, r00)
+        roll, pitch, yaw = euler_zyx(rot)  # rad
         if self._phase[i] == 0:
             # 1. velocity loop: world error in the yaw-aligned body frame -> tilt setpoints (deg), thrust (PWM).
             c, s = math.cos(yaw), math.sin(yaw)
@@ -300,17 +300,14 @@ class FirmwareTracker:
         self._phase[i] = (self._phase[i] + 1) % self.velocity_every
         roll_sp, pitch_sp = self.attitude_setpoint[i]
         # 2. attitude loop: ZYX Euler angles (deg) -> body-rate setpoints (deg/s); yaw held at 0.
-        roll = math.atan2(r21, r22) * DEG
-        pitch = math.asin(-r20 if -1.0 < -r20 < 1.0 else (1.0 if r20 < 0 else -1.0)) * DEG
         yaw_error = -yaw * DEG  # already within [-180, 180]
         rate_sp = (
-            attitude[0].update(roll_sp - roll),
-            attitude[1].update(pitch_sp - pitch),
+            attitude[0].update(roll_sp - roll * DEG),
+            attitude[1].update(pitch_sp - pitch * DEG),
             attitude[2].update(yaw_error),
         )
         # 3. rate loop on the body rates (deg/s) -> roll, pitch, yaw commands (PWM units), then the mixer.
-        wx, wy, wz = ang_vel
-        body = (r00 * wx + r10 * wy + r20 * wz, r01 * wx + r11 * wy + r21 * wz, r02 * wx + r12 * wy + r22 * wz)
+        body = world_to_body(rot, ang_vel)
         tx, ty, tz = (rate[k].update(rate_sp[k] - body[k] * DEG) for k in range(3))
         thrust, hi = self.thrust_command[i], p.pwm_max
         scale, offset = p.pwm_to_rpm_scale, p.pwm_to_rpm_offset

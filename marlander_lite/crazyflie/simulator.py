@@ -50,7 +50,7 @@ import numpy as np
 import pybullet as p
 
 from marlander_lite import task
-from marlander_lite.crazyflie.control import CascadedPID, PIDGains, rotation_matrix
+from marlander_lite.crazyflie.control import CascadedPID, PIDGains
 from marlander_lite.crazyflie.firmware import FirmwareGains, FirmwareTracker
 from marlander_lite.crazyflie.params import CF2XParams, PhysicsConfig, ratio_to_count
 from marlander_lite.crazyflie.perturb import (
@@ -64,6 +64,7 @@ from marlander_lite.crazyflie.physics import MotorLag, downwash_push, drag_force
 from marlander_lite.crazyflie.world import World, connect
 from marlander_lite.episodes import SwarmState
 from marlander_lite.platforms import PlatformConfig, PlatformMotion
+from marlander_lite.rotations import quat_to_matrix_rows, world_to_body
 from marlander_lite.task import TaskConfig
 
 CONTACT_TOLERANCE = 1e-3
@@ -296,7 +297,7 @@ class CrazyflieSwarm:
         """Run the PID and evaluate the forces that act during the next ``1 / control_hz`` seconds."""
         cfg, params, pid = self.physics, self.params, self.controller
         poses, vels = self._poses, self._vels
-        rots = [rotation_matrix(pose[1]) for pose in poses]
+        rots = [quat_to_matrix_rows(pose[1]) for pose in poses]
         effective, lag = self.rpm, self._motor_lag
         if lag.active:
             effective = [list(rpm) for rpm in self.rpm]
@@ -313,12 +314,7 @@ class CrazyflieSwarm:
             rot, pos, vel = rots[i], poses[i][0], vels[i][0]
             fx = fy = fz = 0.0
             if cfg.drag:
-                vel_body = (
-                    rot[0] * vel[0] + rot[3] * vel[1] + rot[6] * vel[2],
-                    rot[1] * vel[0] + rot[4] * vel[1] + rot[7] * vel[2],
-                    rot[2] * vel[0] + rot[5] * vel[1] + rot[8] * vel[2],
-                )
-                fx, fy, fz = drag_force(sum(effective[i]), vel_body, params)
+                fx, fy, fz = drag_force(sum(effective[i]), world_to_body(rot, vel), params)
             if cfg.downwash:
                 push = 0.0
                 for j, other in enumerate(poses):

@@ -30,11 +30,11 @@ import threading
 from pathlib import Path
 from typing import Any, TextIO
 
-from marlander_lite.deploy.config import SIMULATOR_KINDS, LabConfig, load_lab_config
-from marlander_lite.deploy.faults import FAULT_KINDS, FaultSpec
+from marlander_lite.deploy.config import SIMULATOR_KINDS, LabConfig, current_simulator_name, load_lab_config
 from marlander_lite.deploy.interrupts import FLIGHT_SIGNALS, exit_code, terminate_as_interrupt
 from marlander_lite.deploy.link import LinkError
-from marlander_lite.deploy.sim_world import SimulatorUnavailable
+from marlander_lite.deploy.rehearsal.faults import FAULT_KINDS, FaultSpec
+from marlander_lite.deploy.rehearsal.world import SimulatorUnavailable
 
 
 def register(subparsers: Any) -> None:
@@ -48,7 +48,12 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--config", required=True, type=Path, help="lab config YAML (see example_lab.yaml)")
     parser.add_argument("--policy", required=True, type=Path, help="exported policy file (.safetensors)")
     parser.add_argument("--sim", action="store_true", help="rehearse in simulation instead of flying")
-    parser.add_argument("--simulator", choices=SIMULATOR_KINDS, help="physics of the rehearsal (default: config's)")
+    parser.add_argument(
+        "--simulator",
+        type=lambda name: current_simulator_name(name, "--simulator", stacklevel=1),  # the old name, with a warning
+        choices=SIMULATOR_KINDS,
+        help="physics of the rehearsal (default: config's)",
+    )
     parser.add_argument(
         "--inject",
         choices=FAULT_KINDS,
@@ -240,10 +245,10 @@ def _rehearse(
 
 def _fly(lab: LabConfig, args: argparse.Namespace, log_path: Path) -> tuple[bool, str | None]:
     from marlander_lite.deploy.config import load_lab_policy
+    from marlander_lite.deploy.flight_log import FlightLogWriter, flight_header
     from marlander_lite.deploy.link import CrazyflieLink
     from marlander_lite.deploy.mission import Mission
     from marlander_lite.deploy.pose_sources import MotionCaptureSource, RealClock
-    from marlander_lite.deploy.rehearsal import flight_header
 
     policy = load_lab_policy(args.policy, lab)
     print(f"Connecting to {lab.mocap.kind} at {lab.mocap.hostname or '(mock)'} ...")
@@ -254,8 +259,6 @@ def _fly(lab: LabConfig, args: argparse.Namespace, log_path: Path) -> tuple[bool
         link.open()
         if not args.yes:  # run_deploy refused this without a terminal
             input("Ready. Press Enter to run the pre-flight check and take off (Ctrl-C to cancel). ")
-        from marlander_lite.deploy.flight_log import FlightLogWriter
-
         log = FlightLogWriter(log_path, flight_header(lab, policy, source=lab.mocap.kind))
         mission = Mission(lab, policy, source, link, RealClock(), log=log)
         watcher = KeyWatcher(mission)

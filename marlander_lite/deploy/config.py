@@ -17,6 +17,7 @@ Frames and units: the motion-capture world frame (Vicon: z up), metres, seconds,
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any
@@ -36,6 +37,7 @@ from marlander_lite.deploy.schema import (
 )
 from marlander_lite.deploy.sections import (
     MOCAP_KINDS,
+    RENAMED_SIMULATORS,
     SIMULATOR_KINDS,
     CrazyflieParamsConfig,
     DroneConfig,
@@ -48,6 +50,7 @@ from marlander_lite.deploy.sections import (
     SafetyConfig,
     SimulationConfig,
     SimulatorKind,
+    current_simulator_name,
 )
 from marlander_lite.policy_file import MLPPolicy, load_policy, read_contract
 from marlander_lite.task import OBS_PER_DRONE, TaskConfig
@@ -55,6 +58,7 @@ from marlander_lite.task import OBS_PER_DRONE, TaskConfig
 __all__ = [
     "EXAMPLE_CONFIG",
     "MOCAP_KINDS",
+    "RENAMED_SIMULATORS",
     "SIMULATOR_KINDS",
     "ConfigError",
     "CrazyflieParamsConfig",
@@ -69,6 +73,7 @@ __all__ = [
     "SafetyConfig",
     "SimulationConfig",
     "SimulatorKind",
+    "current_simulator_name",
     "load_lab_config",
     "load_lab_policy",
 ]
@@ -183,8 +188,13 @@ def load_lab_config(path: str | Path) -> LabConfig:
     try:
         with path.open("rb") as handle:
             raw = handle.read(MAX_FILE_BYTES + 1)  # never more: a huge file is refused unread
-        return LabConfig.from_dict(read_yaml(raw))
+        with warnings.catch_warnings(record=True) as caught:  # re-issued below, naming the file
+            warnings.simplefilter("always")
+            lab = LabConfig.from_dict(read_yaml(raw))
     except ConfigError as error:
         raise ConfigError(f"{path}: {error}") from None
     except OSError as error:
         raise ConfigError(f"{path}: cannot be read ({error}).") from None
+    for warning in caught:  # an old spelling (``simulator: pybullet``): loaded, and the user told how to update it
+        warnings.warn(f"{path}: {warning.message}", warning.category, stacklevel=2)
+    return lab

@@ -20,14 +20,20 @@ A tick record::
 
 from __future__ import annotations
 
+import dataclasses
+import datetime
 import json
 import os
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from marlander_lite.deploy.config import LabConfig
+    from marlander_lite.deploy.runner import Policy
 
 FORMAT = "marlander_lite.flight_log"
 VERSION = 1
@@ -76,6 +82,23 @@ def tick_record(
         "cmd": commands,
         "events": events,
         "compute_ms": round(compute_ms, 4),
+    }
+
+
+def flight_header(lab: LabConfig, policy: Policy, **extra: Any) -> dict[str, Any]:
+    """The header record of a flight log: start time (UTC), drone and pad names, rates, the whole lab config,
+    the policy's contract, and ``extra`` (``source``, and for a rehearsal ``simulator``, ``seed``, ``fault``)."""
+    contract = getattr(policy, "contract", None)
+    return {
+        "started": datetime.datetime.now(datetime.timezone.utc).isoformat(),
+        "drones": lab.drone_names,
+        "pads": [d.pad for d in lab.drones],
+        "pad_bodies": [p.body for p in lab.drone_pads()],
+        "loop_hz": lab.rates.loop_hz,
+        "policy_hz": lab.rates.policy_hz,
+        "config": dataclasses.asdict(lab),
+        "policy": None if contract is None else dataclasses.asdict(contract),
+        **extra,
     }
 
 

@@ -2,7 +2,8 @@
 
 Pure functions of a :class:`SwarmEstimate` decide; :class:`LandingControl`, the landing half of
 :class:`marlander_lite.deploy.mission.Mission`, acts on their answers (stops motors, hands drones
-over to the high-level commander, lands them, ends their landings). Heights are world z (m);
+over to the high-level commander, lands them, ends their landings) and keeps what it knows in the
+mission's :class:`~marlander_lite.deploy.mission_state.Landings`. Heights are world z (m);
 ``landed_height`` is the height of a drone's body origin above a surface it rests on
 (``TaskConfig.landed_height``).
 """
@@ -16,9 +17,12 @@ import numpy as np
 
 from marlander_lite.deploy.config import LimitsConfig
 from marlander_lite.deploy.estimation import SwarmEstimate
+from marlander_lite.deploy.mission_state import PlannedLanding
+from marlander_lite.deploy.modes import AIRBORNE, FLYING, DronePhase, MissionMode
 
 if TYPE_CHECKING:
     from marlander_lite.deploy.config import LabConfig
+    from marlander_lite.deploy.mission_state import Landings, Milestones, PoseStream, TickBook
     from marlander_lite.task import TaskConfig
 
 SURFACE_RADIUS = 0.35
@@ -29,8 +33,6 @@ HANDOVER_MAX_REL_SPEED = 0.25
 """A drone lingers above its pad when slower than this relative to it (m/s)."""
 HANDOVER_DESCENT_SPEED = 0.1
 """Descent speed of a hand-over landing (m/s)."""
-FLYING: tuple[str, ...] = ("takeoff", "policy", "hover", "landing")
-"""Phases in which a drone's motors run."""
 REST_HEIGHT = 0.05
 """A landing drone rests when it is at most this far above its resting height (m) ..."""
 REST_SPEED = 0.15
@@ -112,7 +114,8 @@ def rests(
 class LandingControl:
     """The landing half of :class:`marlander_lite.deploy.mission.Mission` (a mixin): touchdowns, hand-overs,
     high-level landings and their end, the best-effort landing after an error. It uses the mission's
-    link, phases, estimates and events; the functions above decide, these methods act."""
+    link, phases, estimates and events, and keeps its own state in :attr:`landings`; the functions
+    above decide, these methods act."""
 
     lab: LabConfig
     link: Any
@@ -121,30 +124,32 @@ class LandingControl:
     names: list[str]
     n: int
     t: float
-    phase: list[str]
-    mode: str
-    policy_start: float | None
-    pad_radius: np.ndarray
-    on_pad: np.ndarray
-    landing_error: np.ndarray
-    landing_time: np.ndarray
-    _cmd: list[dict[str, Any]]
-    _landing: dict[int, tuple[float, float, float]]
-    _near_since: np.ndarray
-    _handover: np.ndarray
-    _last_est: SwarmEstimate | None
+    phase: list[DronePhase]
+    times: Milestones
+    stream: PoseStream
+    book: TickBook
+    landings: Landings
 
-    def event(self, kind: Any, message: str, drone: int | None = None) -> None:  # Mission.event
+    # provided by Mission
+    def event(self, kind: Any, message: str, drone: int | None = None) -> None:
+        raise NotImplementedError
+
+    def _set_phase(self, i: int, phase: DronePhase) -> None:
+        raise NotImplementedError
+
+    def _enter(self, mode: MissionMode) -> None:
         raise NotImplementedError
 
     def _touchdowns(self, est: SwarmEstimate, flying: np.ndarray) -> None:
         """Stop the motors of drones that touched something; hand lingering ones over to the planner."""
+        land = self.landings
         fresh = flying & ~est.invalid & (est.age <= self.lab.safety.stale_hover_s)
         floor = self.lab.geofence.z[0]
-        c = contacts(est, fresh, self.pad_radius, self.lab.limits, self.task.landed_height, floor)
+        c = contacts(est, fresh, land.pad_radius, self.lab.limits, self.task.landed_height, floor)
         for i in np.flatnonzero(c.any):
             self.link.stop_motors(i)
-            self.phase[i], self._cmd[i] = "down", {"kind": "stop"}
+            self._set_phase(i, DronePhase.DOWN)
+            self.book.commands[i] = {"kind": "stop"}
             if c.landed[i]:
                 self._landed(i, c.horizontal[i], "touched its pad")
             elif c.hard[i]:
@@ -153,28 +158,29 @@ class LandingControl:
             else:
                 message = f"{self.names[i]} touched the floor or plate off its pad (a crash in training): motors off"
                 self.event("off_pad_contact", message, i)
-        near = lingering(est, fresh & ~c.any, c, self.pad_radius, self.lab.limits)
+        near = lingering(est, fresh & ~c.any, c, land.pad_radius, self.lab.limits)
         near &= self.lab.limits.handover_height > 0
-        self._near_since[~near] = np.nan
-        self._near_since[near & np.isnan(self._near_since)] = self.t
-        for i in np.flatnonzero(near & (self.t - self._near_since >= self.lab.limits.handover_dwell_s)):
+        land.near_since[~near] = np.nan
+        land.near_since[near & np.isnan(land.near_since)] = self.t
+        for i in np.flatnonzero(near & (self.t - land.near_since >= self.lab.limits.handover_dwell_s)):
             duration = max(0.5, (c.rel[i, 2] + self.task.landed_height) / HANDOVER_DESCENT_SPEED)
             self._land(i, est, duration=duration, surface=float(est.pad_pos[i, 2]))
-            self._handover[i] = True
+            land.handover[i] = True
             message = f"{self.names[i]} hovers {c.rel[i, 2] * 100:.1f} cm above its pad: high-level landing on it"
             self.event("handover", message, i)
 
     def _landed(self, i: int, error: float, how: str) -> None:
-        self.on_pad[i], self.landing_error[i] = True, error
-        self.landing_time[i] = self.t - self.policy_start
+        land = self.landings
+        land.on_pad[i], land.error[i] = True, error
+        land.time[i] = self.t - self.times.policy
         self.event("touchdown", f"{self.names[i]} {how} {error * 100:.1f} cm from the centre: motors off", i)
 
     def _landings(self, est: SwarmEstimate) -> None:
         """Stop the motors of landing drones once they rest (or when their landing overran)."""
-        margin = self.lab.safety.land_timeout_margin_s
-        for i, (t_land, duration, surface) in list(self._landing.items()):
-            if self.phase[i] != "landing":
-                del self._landing[i]
+        land, margin = self.landings, self.lab.safety.land_timeout_margin_s
+        for i, (t_land, duration, surface) in list(land.planned.items()):
+            if self.phase[i] != DronePhase.LANDING:
+                del land.planned[i]
                 continue
             _, pad = surface_below(est.pos[i], est, self.lab.geofence.z[0])
             surface_vel = np.zeros(3) if pad is None else est.pad_vel[pad]
@@ -183,10 +189,11 @@ class LandingControl:
             elapsed = self.t - t_land
             if (elapsed >= duration and resting) or elapsed > duration + margin:
                 self.link.stop_motors(i)
-                self.phase[i], self._cmd[i] = "down", {"kind": "stop"}
-                del self._landing[i]
+                self._set_phase(i, DronePhase.DOWN)
+                self.book.commands[i] = {"kind": "stop"}
+                del land.planned[i]
                 error = float(np.hypot(*(est.pos[i, :2] - est.pad_pos[i, :2])))
-                if self._handover[i] and resting and error <= self.pad_radius[i]:
+                if land.handover[i] and resting and error <= land.pad_radius[i]:
                     self._landed(i, error, "rests on its pad")
                 elif resting:
                     self.event("motors_off", f"{self.names[i]} rests: motors off", i)
@@ -201,26 +208,27 @@ class LandingControl:
             z = est.pos[i, 2] if np.isfinite(est.pos[i, 2]) else self.lab.limits.takeoff_height
             duration = max(1.0, (z - surface) / self.lab.limits.land_speed)
         self.link.land(i, surface, duration)
-        self.phase[i] = "landing"
-        self._landing[i] = (self.t, duration, surface)
-        self._cmd[i] = {"kind": "land", "height": surface, "duration": duration}
+        self._set_phase(i, DronePhase.LANDING)
+        self.landings.planned[i] = PlannedLanding(self.t, duration, surface)
+        self.book.commands[i] = {"kind": "land", "height": surface, "duration": duration}
 
     def _land_all(self, est: SwarmEstimate, message: str | None) -> None:
+        """Land every airborne drone (mode ``landing``), after logging ``message`` as a ``land`` event if given."""
         if message:
             self.event("land", message)
         for i in range(self.n):
-            if self.phase[i] in ("takeoff", "policy", "hover"):
+            if self.phase[i] in AIRBORNE:
                 self._land(i, est)
-        self.mode = "landing"
+        self._enter(MissionMode.LANDING)
 
     def _fallback_landing(self) -> None:
         """After an unexpected error: land every flying drone, wait for it, stop the motors (best effort)."""
-        est, longest = self._last_est, 0.0
+        est, longest = self.stream.last, 0.0
         for i in range(self.n):
-            if self.phase[i] in ("takeoff", "policy", "hover") and est is not None:
+            if self.phase[i] in AIRBORNE and est is not None:
                 try:
                     self._land(i, est)
-                    longest = max(longest, self._landing[i][1])
+                    longest = max(longest, self.landings.planned[i].duration)
                 except Exception:  # keep trying the other drones
                     pass
         if longest:
@@ -229,6 +237,6 @@ class LandingControl:
             if self.phase[i] in FLYING:
                 try:
                     self.link.stop_motors(i)
-                    self.phase[i] = "down"
+                    self._set_phase(i, DronePhase.DOWN)
                 except Exception:  # keep trying the other drones
                     pass

@@ -14,7 +14,7 @@ per drone:
 
 A lost radio link is reported by cflib's ``connection_lost`` callback; :meth:`lost` tells the
 loop. The same class drives the simulated Crazyflies: pass ``factory=world.factory``
-(:class:`marlander_lite.deploy.virtual_crazyflie.VirtualCfFactory`), the ``factory`` argument
+(:class:`marlander_lite.deploy.rehearsal.virtual_crazyflie.VirtualCfFactory`), the ``factory`` argument
 ``Swarm`` provides for test doubles.
 """
 

@@ -16,32 +16,41 @@ loop "sleeps") and a flight log. Every tick (``1 / rates.loop_hz`` s):
 4. one log record; then sleep until the next tick. The work of each tick is timed
    (``compute_ms``) against the period.
 
+The mode (:class:`~marlander_lite.deploy.modes.MissionMode`) and each drone's phase
+(:class:`~marlander_lite.deploy.modes.DronePhase`) change only as their tables in
+:mod:`marlander_lite.deploy.modes` allow (``docs/lab_guide.md`` shows them); everything else the
+mission remembers is in the named pieces of :mod:`marlander_lite.deploy.mission_state`.
 Mission times (event times, log ``t``) are seconds since :meth:`Mission.run` started.
 """
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable, Sequence
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 
 from marlander_lite.deploy.config import LabConfig
 from marlander_lite.deploy.estimation import EstimatorConfig, SwarmEstimate, SwarmEstimator
 from marlander_lite.deploy.flight_log import FlightLogWriter, jsonable, rounded, tick_record
-from marlander_lite.deploy.interrupts import describe, handle_signals
-from marlander_lite.deploy.landing import FLYING as FLYING  # re-exported: the phases in which motors run
+from marlander_lite.deploy.interrupts import handle_signals
 from marlander_lite.deploy.landing import LandingControl
+from marlander_lite.deploy.mission_state import Landings, Milestones, PolicyOutput, PoseStream, Requests, TickBook
+from marlander_lite.deploy.modes import (
+    FINISHED,
+    MODE_TRANSITIONS,
+    PHASE_TRANSITIONS,
+    UNDER_POLICY,
+    DronePhase,
+    MissionMode,
+    check_change,
+)
 from marlander_lite.deploy.pose_sources import Clock, PoseFrame, PoseSource
 from marlander_lite.deploy.results import MissionResult
 from marlander_lite.deploy.runner import InvalidAction, Policy, PolicyRunner
 from marlander_lite.deploy.safety import Event, EventKind, SafetyMonitor
 from marlander_lite.task import OBS_PER_DRONE
-
-Phase = Literal["idle", "takeoff", "policy", "hover", "landing", "down", "lost"]
-Mode = Literal["preflight", "takeoff", "policy", "landing", "done"]
 
 
 class Mission(LandingControl):
@@ -55,6 +64,7 @@ class Mission(LandingControl):
         clock: the loop's clock.
         log: where each tick is recorded (optional).
         hooks: called as ``hook(mission, t)`` at the start of every tick (fault injection, UIs).
+        estimator: settings of the velocity estimation (default: :class:`EstimatorConfig`'s).
         min_preflight_s: stream poses to every drone at least this long before take-off (s), so
             that their Kalman filters settle.
     """
@@ -71,6 +81,7 @@ class Mission(LandingControl):
         estimator: EstimatorConfig | None = None,
         min_preflight_s: float = 1.0,
     ) -> None:
+        # partners and the parts built from the config (fixed for the flight)
         self.lab, self.source, self.link, self.clock, self.log = lab, source, link, clock, log
         self.hooks = list(hooks)
         contract = getattr(policy, "contract", None)
@@ -79,53 +90,56 @@ class Mission(LandingControl):
         self.estimator = SwarmEstimator(lab, estimator, landed_height=self.task.landed_height)
         self.safety = SafetyMonitor(lab)
         self.min_preflight_s = min_preflight_s
+        self.names = lab.drone_names
+        # the state, tick by tick
         n = lab.num_drones
-        self.n, self.names = n, lab.drone_names
-        self.period = 1.0 / lab.rates.loop_hz
-        self.pad_radius = np.array([p.radius for p in lab.drone_pads()])
-        self.mode: Mode = "preflight"
-        self.phase: list[Phase] = ["idle"] * n
-        self.armed = False
-        self.tick = 0
-        self.t = 0.0
-        self.policy_start: float | None = None
-        """Mission time the policy took over (s); None before."""
-        self.velocity = np.zeros((n, 3))
-        self.obs: np.ndarray | None = None
-        self.action: np.ndarray | None = None
+        self.mode = MissionMode.PREFLIGHT
+        self.phase = [DronePhase.IDLE] * n
+        """Each drone's phase (changed only through :meth:`_set_phase`)."""
+        self.tick, self.t = 0, 0.0
+        """Index of the next tick to run, and the mission time of the latest one (s)."""
         self.events: list[Event] = []
-        self.on_pad = np.zeros(n, dtype=bool)
-        self.landing_error = np.full(n, np.nan)
-        self.landing_time = np.full(n, np.nan)
-        self.loop_ms: list[float] = []
-        self.interrupted_by: str | None = None
+        self.times = Milestones()
+        self.stream = PoseStream.empty(n)
+        self.output = PolicyOutput(velocity=np.zeros((n, 3)))
+        self.landings = Landings(pad_radius=np.array([p.radius for p in lab.drone_pads()]))
+        self.requests = Requests()
+        self.book = TickBook()
+
+    # ------------------------------------------------------------------ read-only views
+    @property
+    def n(self) -> int:
+        """Number of drones."""
+        return len(self.names)
+
+    @property
+    def period(self) -> float:
+        """Loop period (s)."""
+        return 1.0 / self.lab.rates.loop_hz
+
+    @property
+    def armed(self) -> bool:
+        """The pre-flight check passed and the drones were told to take off."""
+        return self.times.takeoff is not None
+
+    @property
+    def policy_start(self) -> float | None:
+        """Mission time the policy took over (s); None before."""
+        return self.times.policy
+
+    @property
+    def interrupted_by(self) -> str | None:
         """The signal that ended the flight early (``"SIGINT"`` for Ctrl-C, ``"SIGTERM"``, ``"SIGHUP"``), or None."""
-        self._signals = 0
-        self._tick_open: int | None = None  # index of the tick being worked on
-        self._events_logged = 0  # self.events[:_events_logged] are in tick records
-        self._events_marked = 0  # ... and [:_events_marked] in the record being written
-        self._cmd: list[dict[str, Any]] = []
-        self._landing: dict[int, tuple[float, float, float]] = {}
-        self._near_since = np.full(n, np.nan)
-        self._handover = np.zeros(n, dtype=bool)
-        self._forwarded = np.full(n, -math.inf)
-        self._streaming_since = np.full(n, np.inf)  # mission time of each drone's first forwarded pose
-        self._action_ok = True
-        self._policy_tick0 = 0
-        self._land_requests: list[str] = []  # appended from signal handlers and key threads, emptied by ticks
-        self._kill_request: str | None = None
-        self._invalid_bodies: set[str] = set()
-        self._lost_seen = np.zeros(n, dtype=bool)
-        self._last_est: SwarmEstimate | None = None
+        return self.requests.interrupted_by
 
     # ------------------------------------------------------------------ public controls
     def request_land(self, reason: str = "emergency key") -> None:
         """Land every drone at the next tick (thread-safe: a key watcher may call it)."""
-        self._land_requests.append(reason)  # a list: two requests in one tick (Ctrl-C and a time limit) both count
+        self.requests.land.append(reason)
 
     def request_kill(self, reason: str = "emergency stop") -> None:
         """Stop every motor at the next tick."""
-        self._kill_request = reason
+        self.requests.kill = reason
 
     def event(self, kind: EventKind, message: str, drone: int | None = None) -> None:
         """Record an event at the current mission time."""
@@ -139,15 +153,14 @@ class Mission(LandingControl):
         tick and a second one stops every motor (:mod:`marlander_lite.deploy.interrupts`); the
         previous signal handlers are restored when it returns.
         """
-        self._t0 = self.clock.now()
-        next_tick = self._t0
-        with handle_signals(self._on_signal):
+        self.times.start = next_tick = self.clock.now()
+        with handle_signals(self.requests.on_signal):
             try:
-                while self.mode != "done":
+                while self.mode != MissionMode.DONE:
                     try:
                         self._tick()
                     except KeyboardInterrupt:  # raised by code the tick called: treated like SIGINT
-                        self._on_signal("SIGINT")
+                        self.requests.on_signal("SIGINT")
                         if not self._settle_interrupted_tick():
                             continue  # cut short before its record was written: redo it under the same index
                     next_tick = self._pace(next_tick)
@@ -172,19 +185,8 @@ class Mission(LandingControl):
                 next_tick = self.clock.now()
             self.clock.sleep_until(next_tick)
         except KeyboardInterrupt:
-            self._on_signal("SIGINT")
+            self.requests.on_signal("SIGINT")
         return next_tick
-
-    def _on_signal(self, name: str) -> None:
-        """Ctrl-C or a signal (``"SIGINT"``, ``"SIGTERM"``, ``"SIGHUP"``): the first lands every drone at the
-        next tick, any later one stops every motor. Runs inside a signal handler: it only sets requests."""
-        self._signals += 1
-        if self.interrupted_by is None:
-            self.interrupted_by = name
-        if self._signals == 1:
-            self.request_land(describe(name))
-        else:
-            self.request_kill(f"second interrupt ({describe(name)})")
 
     def _settle_interrupted_tick(self) -> bool:
         """After a ``KeyboardInterrupt`` escaped a tick: whether that tick counts as done.
@@ -194,22 +196,24 @@ class Mission(LandingControl):
         so doing it twice is harmless). A tick cut short before its record keeps its index and its
         events, and is redone: the log never holds a tick twice, and never skips one.
         """
-        k, self._tick_open = self._tick_open, None
+        book = self.book
+        k, book.open = book.open, None
         if k is None:
             return True  # the interrupt came after the tick finished
         if self.log is None or getattr(self.log, "last_tick", None) == k:
-            self.tick, self._events_logged = k + 1, self._events_marked
+            self.tick, book.events_logged = k + 1, book.events_marked
             return True
         return False
 
     def result(self) -> MissionResult:
-        ms = np.array(self.loop_ms) if self.loop_ms else np.zeros(1)
+        ms = np.array(self.book.loop_ms) if self.book.loop_ms else np.zeros(1)
+        landings = self.landings
         return MissionResult(
             armed=self.armed,
-            phases=list(self.phase),
-            on_pad=[bool(v) for v in self.on_pad],
-            landing_error=[float(v) for v in self.landing_error],
-            landing_time=[float(v) for v in self.landing_time],
+            phases=[p.value for p in self.phase],
+            on_pad=[bool(v) for v in landings.on_pad],
+            landing_error=[float(v) for v in landings.error],
+            landing_time=[float(v) for v in landings.time],
             ticks=self.tick,
             duration_s=self.t,
             loop_ms_median=float(np.median(ms)),
@@ -223,11 +227,11 @@ class Mission(LandingControl):
 
     def _tick(self) -> None:
         start = time.perf_counter()
-        now = self.clock.now()
-        k = self._tick_open = self.tick
-        self.t = now - self._t0
-        self._cmd = [{"kind": "none"} for _ in range(self.n)]
-        self.obs = self.action = None
+        now, book = self.clock.now(), self.book
+        k = book.open = self.tick
+        self.t = now - self.times.start
+        book.commands = [{"kind": "none"} for _ in range(self.n)]
+        self.output.obs = self.output.action = None
         for hook in self.hooks:
             hook(self, self.t)
         frames = self.source.read(now)
@@ -235,166 +239,175 @@ class Mission(LandingControl):
         self._forward_poses()
         self.decide(est)
         compute_ms = (time.perf_counter() - start) * 1000.0
-        self._events_marked = len(self.events)  # this record holds the events since the last record
+        book.events_marked = len(self.events)  # this record holds the events since the last record
         if self.log is not None:
             record = tick_record(
                 tick=k,
                 t=self.t,
-                mode=self.mode,
-                phase=self.phase,
+                mode=self.mode.value,
+                phase=[p.value for p in self.phase],
                 frames=frames,
                 ages=self.estimator.ages(now),
                 est=est,
-                obs=self.obs,
-                action=self.action,
-                commands=self._cmd,
-                events=[e.to_dict() for e in self.events[self._events_logged : self._events_marked]],
+                obs=self.output.obs,
+                action=self.output.action,
+                commands=book.commands,
+                events=[e.to_dict() for e in self.events[book.events_logged : book.events_marked]],
                 compute_ms=compute_ms,
             )
             self.log.write(record)
-        self.tick, self._events_logged = k + 1, self._events_marked
-        self.loop_ms.append((time.perf_counter() - start) * 1000.0)
-        self._tick_open = None
+        self.tick, book.events_logged = k + 1, book.events_marked
+        book.loop_ms.append((time.perf_counter() - start) * 1000.0)
+        book.open = None
 
     def sense(self, frames: list[PoseFrame], now: float) -> SwarmEstimate:
         """Feed the frames to the estimator; log rejected poses once per bad spell."""
+        stream = self.stream
         for body, reason in self.estimator.ingest(frames):
-            if body not in self._invalid_bodies:
-                self._invalid_bodies.add(body)
+            if body not in stream.rejected:
+                stream.rejected.add(body)
                 self.event("invalid_pose", f"{body}: {reason}", self._drone_index(body))
         tracks = self.estimator.tracks
-        self._invalid_bodies = {b for b in self._invalid_bodies if tracks.invalid[tracks.index[b]]}
-        est = self.estimator.estimate(now)
-        self._last_est = est
-        return est
+        stream.rejected = {b for b in stream.rejected if tracks.invalid[tracks.index[b]]}
+        stream.last = self.estimator.estimate(now)
+        return stream.last
 
     def _drone_index(self, body: str) -> int | None:
         return self.names.index(body) if body in self.names else None
 
     def _forward_poses(self) -> None:
-        tracks = self.estimator.tracks
+        tracks, stream = self.estimator.tracks, self.stream
         for i, name in enumerate(self.names):
             k = tracks.index[name]
-            if tracks.t_last[k] > self._forwarded[i] and self.phase[i] != "lost":
+            if tracks.t_last[k] > stream.forwarded[i] and self.phase[i] != DronePhase.LOST:
                 self.link.send_pose(i, tracks.pose[k])
-                self._forwarded[i] = tracks.t_last[k]
-                self._streaming_since[i] = min(self._streaming_since[i], self.t)
+                stream.forwarded[i] = tracks.t_last[k]
+                stream.streaming_since[i] = min(stream.streaming_since[i], self.t)
+
+    # ------------------------------------------------------------------ modes
+    def _enter(self, mode: MissionMode) -> None:
+        """Change the mission's mode, as :data:`~marlander_lite.deploy.modes.MODE_TRANSITIONS` allows."""
+        self.mode = check_change(MODE_TRANSITIONS, self.mode, mode, "mission mode")
+
+    def _set_phase(self, i: int, phase: DronePhase) -> None:
+        """Change drone ``i``'s phase, as :data:`~marlander_lite.deploy.modes.PHASE_TRANSITIONS` allows."""
+        self.phase[i] = check_change(PHASE_TRANSITIONS, self.phase[i], phase, f"phase of {self.names[i]}")
 
     def decide(self, est: SwarmEstimate) -> None:
         """The mode machine for one tick (safety, policy, commands)."""
         self._check_links()
         self._check_requests(est)
-        if self.mode == "preflight":
+        if self.mode == MissionMode.PREFLIGHT:
             self._preflight(est)
-        elif self.mode == "takeoff":
+        elif self.mode == MissionMode.TAKEOFF:
             self._takeoff(est)
-        elif self.mode in ("policy", "landing"):
+        elif self.mode in (MissionMode.POLICY, MissionMode.LANDING):
             self._fly(est)
-        if self.mode != "preflight" and all(p in ("down", "lost") for p in self.phase):
-            self.mode = "done"
+        if self.mode != MissionMode.PREFLIGHT and all(p in FINISHED for p in self.phase):
+            self._enter(MissionMode.DONE)
 
-    # ------------------------------------------------------------------ modes
     def _preflight(self, est: SwarmEstimate) -> None:
         lost = [self.link.lost(i) for i in range(self.n)]
         problems = self.safety.arming_problems(est, lost)
-        streamed = self.t - self._streaming_since.max()  # every drone's Kalman filter has had poses this long
+        streamed = self.t - self.stream.streaming_since.max()  # every drone's Kalman filter has had poses this long
         if not problems and streamed >= self.min_preflight_s:
-            self.armed = True
+            self.times.takeoff = self.t
             self.event("armed", "pre-flight check passed: taking off")
             height, duration = self.lab.limits.takeoff_height, self.lab.limits.takeoff_duration
             for i in range(self.n):
                 self.link.takeoff(i, height, duration)
-                self.phase[i] = "takeoff"
-                self._cmd[i] = {"kind": "takeoff", "height": height, "duration": duration}
-            self.mode, self._takeoff_t = "takeoff", self.t
+                self._set_phase(i, DronePhase.TAKEOFF)
+                self.book.commands[i] = {"kind": "takeoff", "height": height, "duration": duration}
+            self._enter(MissionMode.TAKEOFF)
         elif self.t > self.lab.safety.arming_timeout_s:
             self.event("arming_failed", "not cleared to take off: " + "; ".join(problems or ["timeout"]))
-            self.mode = "done"
+            self._enter(MissionMode.DONE)
 
     def _takeoff(self, est: SwarmEstimate) -> None:
-        flying = np.array([p == "takeoff" for p in self.phase])
+        flying = np.array([p == DronePhase.TAKEOFF for p in self.phase])
         verdict = self.safety.flight(self.t, est, flying, action_ok=True)
         self._add(verdict.events)
         if verdict.action == "land":
             self._land_all(est, None)
             return
-        limits, elapsed = self.lab.limits, self.t - self._takeoff_t
+        limits, elapsed = self.lab.limits, self.t - self.times.takeoff
         fresh = est.drone_age <= self.lab.safety.stale_hover_s
         reached = flying & fresh & (np.abs(est.pos[:, 2] - limits.takeoff_height) < 0.1)
         if elapsed >= limits.takeoff_duration and reached[flying].all():
-            self.mode, self.policy_start, self._policy_tick0 = "policy", self.t, self.tick
+            self._enter(MissionMode.POLICY)
+            self.times.policy, self.times.policy_tick = self.t, self.tick
             for i in np.flatnonzero(flying):
-                self.phase[i] = "policy"
+                self._set_phase(i, DronePhase.POLICY)
             self.event("policy_start", "every drone at take-off height: the policy takes over")
             self._fly(est)
         elif elapsed > limits.takeoff_duration + 3.0:
             self._land_all(est, "take-off did not reach its height in time")
 
     def _fly(self, est: SwarmEstimate) -> None:
-        flying = np.array([p in ("policy", "hover") for p in self.phase])
-        if flying.any() and self.mode == "policy":
-            due = (self.tick - self._policy_tick0) % self.lab.rates.ticks_per_action == 0
-            if due or "hover" in self.phase:  # after a hover, act on fresh data at once, not on a stale command
+        flying = np.array([p in UNDER_POLICY for p in self.phase])
+        if flying.any() and self.mode == MissionMode.POLICY:
+            due = (self.tick - self.times.policy_tick) % self.lab.rates.ticks_per_action == 0
+            if due or DronePhase.HOVER in self.phase:  # after a hover, act on fresh data at once, not a stale command
                 self._run_policy(est)
-            verdict = self.safety.flight(self.t, est, flying, self._action_ok)
+            verdict = self.safety.flight(self.t, est, flying, self.output.valid)
             self._add(verdict.events)
             if verdict.action == "land":
                 self._land_all(est, None)
-            elif self.t - self.policy_start > self.lab.limits.max_flight_s:
+            elif self.t - self.times.policy > self.lab.limits.max_flight_s:
                 self.event("flight_timeout", f"{self.lab.limits.max_flight_s} s under the policy: landing")
                 self._land_all(est, None)
             else:
                 self._touchdowns(est, flying)
                 hover = verdict.action == "hover"
-                for i in np.flatnonzero(flying & np.array([p in ("policy", "hover") for p in self.phase])):
-                    v = np.zeros(3) if hover else self.velocity[i]
+                for i in np.flatnonzero(flying & np.array([p in UNDER_POLICY for p in self.phase])):
+                    v = np.zeros(3) if hover else self.output.velocity[i]
                     self.link.send_velocity(i, v)
-                    self.phase[i] = "hover" if hover else "policy"
-                    self._cmd[i] = {"kind": "hover" if hover else "velocity", "v": rounded(v)}
+                    self._set_phase(i, DronePhase.HOVER if hover else DronePhase.POLICY)
+                    self.book.commands[i] = {"kind": "hover" if hover else "velocity", "v": rounded(v)}
         self._landings(est)
 
     def _run_policy(self, est: SwarmEstimate) -> None:
         ok = not est.invalid.any() and (est.age <= self.lab.safety.stale_hover_s).all()
         if not ok:
             return  # the safety rules hover; the policy waits for fresh data
-        self.obs = self.runner.observe(est)
+        out = self.output
+        out.obs = self.runner.observe(est)
         try:
-            self.action, self.velocity = self.runner.act(self.obs)
-            if not self._action_ok:
+            out.action, out.velocity = self.runner.act(out.obs)
+            if not out.valid:
                 self.event("recovered", "the policy returns valid actions again")
-            self._action_ok = True
+            out.valid = True
         except InvalidAction as error:
-            if self._action_ok:
+            if out.valid:
                 self.event("invalid_action", f"{error}: hovering")
-            self._action_ok = False
+            out.valid = False
 
-    # ------------------------------------------------------------------ landing and requests
+    # ------------------------------------------------------------------ lost links and requests
     def _check_links(self) -> None:
         for i in range(self.n):
             reason = self.link.lost(i)
-            if reason and not self._lost_seen[i]:
-                self._lost_seen[i] = True
+            if reason and self.phase[i] != DronePhase.LOST:  # lost is final: each loss is handled once
                 was = self.phase[i]
-                self.phase[i] = "lost"
+                self._set_phase(i, DronePhase.LOST)
                 self.event("link_lost", f"{self.names[i]}: radio link lost ({reason}) while {was}", i)
-                if self.mode in ("takeoff", "policy") and self._last_est is not None:
-                    self._land_all(self._last_est, "a link was lost: landing every other drone")
+                if self.mode in (MissionMode.TAKEOFF, MissionMode.POLICY) and self.stream.last is not None:
+                    self._land_all(self.stream.last, "a link was lost: landing every other drone")
 
     def _check_requests(self, est: SwarmEstimate) -> None:
-        if self._kill_request:
-            self.event("emergency", f"{self._kill_request}: every motor off")
+        requests = self.requests
+        if requests.kill:
+            self.event("emergency", f"{requests.kill}: every motor off")
             for i in range(self.n):
-                if self.phase[i] != "lost":
+                if self.phase[i] != DronePhase.LOST:
                     self.link.stop_motors(i)
-                    self.phase[i], self._cmd[i] = "down", {"kind": "stop"}
-            self._kill_request, self.mode = None, "done"
-        elif self._land_requests:
-            reasons = []
-            while self._land_requests:
-                reasons.append(self._land_requests.pop(0))
-            self.event("interrupt", f"{' and '.join(reasons)}: landing every drone")
-            if self.mode == "preflight":
-                self.mode = "done"
+                    self._set_phase(i, DronePhase.DOWN)
+                    self.book.commands[i] = {"kind": "stop"}
+            requests.kill = None
+            self._enter(MissionMode.DONE)
+        elif requests.land:
+            self.event("interrupt", f"{' and '.join(requests.take_land_reasons())}: landing every drone")
+            if self.mode == MissionMode.PREFLIGHT:
+                self._enter(MissionMode.DONE)
             else:
                 self._land_all(est, None)
 

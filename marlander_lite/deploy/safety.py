@@ -47,6 +47,8 @@ from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
+from marlander_lite.rotations import tilt_deg
+
 if TYPE_CHECKING:  # config imports this module's braking model: no import cycle at run time
     from marlander_lite.deploy.config import LabConfig
     from marlander_lite.deploy.estimation import SwarmEstimate
@@ -191,12 +193,6 @@ class Verdict:
 
     action: Action
     events: list[Event]
-
-
-def tilt_deg(quat: np.ndarray) -> np.ndarray:
-    """Angle between body z and world z (degrees) of ``(..., 4)`` quaternions ``(x, y, z, w)``."""
-    cos = 1.0 - 2.0 * (quat[..., 0] ** 2 + quat[..., 1] ** 2)
-    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
 
 
 class SafetyMonitor:

@@ -10,10 +10,11 @@ import them from there (``from marlander_lite.deploy.config import GeofenceConfi
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 from typing import Annotated, Any, Literal, get_args
 
-from pydantic import Field, with_config
+from pydantic import BeforeValidator, Field, with_config
 
 from marlander_lite.deploy.schema import (
     SCHEMA_CONFIG,
@@ -28,11 +29,33 @@ from marlander_lite.deploy.schema import (
     check,
 )
 from marlander_lite.platforms import PLATFORM_KINDS, PlatformKind
+from marlander_lite.simulators import SIMULATORS, SimulatorName
 
 MocapKind = Literal["vicon", "optitrack", "qualisys", "vrpn", "mock"]
 MOCAP_KINDS: tuple[str, ...] = get_args(MocapKind)
-SimulatorKind = Literal["pybullet", "pointmass"]
-SIMULATOR_KINDS: tuple[str, ...] = get_args(SimulatorKind)
+SimulatorKind = SimulatorName
+SIMULATOR_KINDS: tuple[str, ...] = SIMULATORS
+"""The simulators a rehearsal can fly: those of :mod:`marlander_lite.simulators`, named as everywhere."""
+RENAMED_SIMULATORS = {"pybullet": "crazyflie"}
+"""Old simulator names a lab config may still use -> the current name (they load, with a ``FutureWarning``)."""
+
+
+def current_simulator_name(name: Any, where: str = "simulation.simulator", stacklevel: int = 2) -> Any:
+    """``name``, or its current spelling if it is an old one (:data:`RENAMED_SIMULATORS`), with a warning.
+
+    The warning is a ``FutureWarning`` (shown by default, unlike ``DeprecationWarning``): whoever wrote the
+    config reads it, not only a developer. ``stacklevel`` is ``warnings.warn``'s, counted from the caller.
+    """
+    new = RENAMED_SIMULATORS.get(name) if isinstance(name, str) else None
+    if new is None:
+        return name
+    warnings.warn(
+        f"{where}: {name!r} is the old name of the PyBullet Crazyflie simulator; write {new!r} instead "
+        f"(the old name still works, but may be refused in a later version).",
+        FutureWarning,
+        stacklevel=stacklevel + 1,
+    )
+    return new
 
 
 @with_config(SCHEMA_CONFIG)
@@ -265,8 +288,9 @@ class CrazyflieParamsConfig:
 class SimulationConfig:
     """The simulated lab of ``marlander deploy --sim`` (ignored on hardware)."""
 
-    simulator: SimulatorKind = "pybullet"
-    """Physics: ``pybullet`` (the Crazyflie model) or ``pointmass`` (fast)."""
+    simulator: Annotated[SimulatorKind, BeforeValidator(lambda name: current_simulator_name(name))] = "crazyflie"
+    """Physics: ``crazyflie`` (the PyBullet Crazyflie model) or ``pointmass`` (fast); the old name ``pybullet``
+    still loads, with a warning."""
     platform: PlatformKind = "static-floor"
     """Platform motion, one of ``marlander_lite.platforms.PLATFORM_KINDS``."""
     platform_speed: Annotated[Real, Field(gt=0, le=2)] | None = None
@@ -289,6 +313,8 @@ class SimulationConfig:
     """Simulated time after which the rehearsal stops (s)."""
 
     def __post_init__(self) -> None:
+        if self.simulator in RENAMED_SIMULATORS:  # built in Python, not loaded: pydantic did not rename it
+            object.__setattr__(self, "simulator", current_simulator_name(self.simulator, stacklevel=3))
         check(
             self.simulator in SIMULATOR_KINDS,
             f"simulation.simulator is {self.simulator!r}; allowed: {', '.join(SIMULATOR_KINDS)}.",

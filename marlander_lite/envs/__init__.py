@@ -1,1 +1,1 @@
-"""Environment faces shared by both simulators: gymnasium, PettingZoo, and the option parsing."""
+"""Environment faces shared by every simulator (gymnasium, stable-baselines3, PettingZoo) and their options."""

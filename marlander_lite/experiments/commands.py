@@ -30,11 +30,13 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from marlander_lite.cli import non_negative_int, positive_int
+from marlander_lite.config_cli import ConfigOptions, FieldOption, changed_options
+from marlander_lite.distributed import BACKENDS
 from marlander_lite.experiments import figures, includes, tables
 from marlander_lite.experiments.controllers import CONTROLLERS, PAPER_CONTROLLERS
 from marlander_lite.experiments.protocol import (
     CONDITION_NAMES,
-    SENSING_NAMES,
     ProtocolConfig,
     TrialRecord,
     check_policies,
@@ -42,7 +44,6 @@ from marlander_lite.experiments.protocol import (
     record_trajectory,
     run_protocol,
 )
-from marlander_lite.make import SIMULATORS
 
 RESULTS_ROOT = Path("data/results")
 """The shipped results: written only by a full run with ``--update-shipped``."""
@@ -86,6 +87,39 @@ def _trials(text: str) -> int | str:
     return value
 
 
+PROTOCOL_FIELDS = {
+    "controllers": FieldOption(
+        parse=_choices(CONTROLLERS, "controller(s)"),
+        metavar="NAMES",
+        note=f"Comma-separated, from {', '.join(CONTROLLERS)} (or all); with --update-shipped, those of the "
+        "shipped run.",
+        show=",".join,
+    ),
+    "conditions": FieldOption(
+        parse=_choices(CONDITION_NAMES, "condition(s)"),
+        metavar="NAMES",
+        note=f"Comma-separated, from {', '.join(CONDITION_NAMES)} (or all).",
+        show=lambda names: "all" if tuple(names) == CONDITION_NAMES else ",".join(names),
+    ),
+    "trials": FieldOption(parse=_trials, metavar="N|paper", note=f"--quick: {QUICK_TRIALS}."),
+    "seed": FieldOption(parse=non_negative_int, metavar="S"),
+    "time_limit_s": FieldOption(flags=("--time-limit", "--time-limit-s"), metavar="SECONDS"),
+    **{name: FieldOption(parse=positive_int, metavar="N") for name in ("num_drones", "workers", "block_size")},
+}
+"""How ProtocolConfig fields depart from the generated options (comma-separated lists, the old spellings)."""
+COMMAND_LINE_FIELDS = (
+    *("simulator", "controllers", "conditions", "trials", "seed", "sensing", "time_limit_s", "workers"),
+    "policy_paths",
+)
+"""Fields :func:`command_line` always writes; the others only when they differ from the defaults."""
+POLICY_DESTS = {
+    "marlander": "marlander_policy",
+    "single-agent-apf": "single_agent_policy",
+    "marlander-plus": "marlander_plus_policy",
+}
+"""``ProtocolConfig.policy_paths``: controller -> the option (``--marlander-policy``...) that sets its file."""
+
+
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add ``reproduce`` to the ``marlander`` command line."""
     p = subparsers.add_parser(
@@ -93,29 +127,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="fly the paper's experiments (Tables I, II, Fig. 7) and write data/results",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
+        usage="marlander reproduce [--quick] [--FIELD VALUE ...] [--apf.KEY VALUE ...] [--out DIR] "
+        "[--update-shipped | --report-only] ...",
     )
-    p.add_argument("--simulator", choices=SIMULATORS, default="pointmass", help="physics back end (default pointmass)")
-    p.add_argument(
-        "--controllers",
-        type=_choices(CONTROLLERS, "controller(s)"),
-        help=f"comma-separated, from {', '.join(CONTROLLERS)} (default: the paper's {', '.join(PAPER_CONTROLLERS)}; "
-        "with --update-shipped, those of the shipped run)",
-    )
-    p.add_argument(
-        "--conditions",
-        type=_choices(CONDITION_NAMES, "condition(s)"),
-        default=CONDITION_NAMES,
-        help=f"comma-separated, from {', '.join(CONDITION_NAMES)} (default all)",
-    )
-    p.add_argument("--trials", type=_trials, default=100, help="trials per controller and condition, or 'paper'")
     p.add_argument("--quick", action="store_true", help=f"{QUICK_TRIALS} trials per cell, results in <simulator>-quick")
-    p.add_argument("--workers", type=int, default=2, help="worker processes (default 2)")
-    p.add_argument("--seed", type=int, default=0, help="base seed of the trials (default 0)")
-    p.add_argument("--sensing", choices=SENSING_NAMES, default="vicon", help="observation model (default vicon)")
-    p.add_argument("--time-limit", type=float, default=30.0, help="seconds before a trial times out (default 30)")
-    p.add_argument("--marlander-policy", type=Path, help="centralised policy file (default: the shipped one)")
-    p.add_argument("--single-agent-policy", type=Path, help="1-drone policy file (default: the shipped one)")
-    p.add_argument("--marlander-plus-policy", type=Path, help="policy that observes the platform velocity")
+    p.add_argument(
+        "--marlander-policy", type=Path, metavar="FILE", help="centralised policy file (default: the shipped one)"
+    )
+    p.add_argument(
+        "--single-agent-policy", type=Path, metavar="FILE", help="1-drone policy file (default: the shipped one)"
+    )
+    p.add_argument(
+        "--marlander-plus-policy", type=Path, metavar="FILE", help="policy that observes the platform velocity"
+    )
     p.add_argument("--out", type=Path, help="results folder (default runs/reproduce/<simulator>[-quick]-<time>)")
     p.add_argument(
         "--update-shipped",
@@ -126,30 +150,22 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--no-doc", action="store_true", help="do not touch the document")
     p.add_argument("--report-only", action="store_true", help="rebuild tables, figures and doc from trials.csv")
     p.add_argument("--no-figures", action="store_true", help="skip Fig. 7 and the speed figure")
-    p.set_defaults(func=run)
+    p.add_argument(
+        "--backend",
+        choices=BACKENDS,
+        default="local",
+        help="local: --workers processes here (default); ray: one Ray task per block of trials (same results)",
+    )
+    p.add_argument("--address", help="ray: 'auto' (this machine's cluster) or HEAD_HOST:PORT; default: a private one")
+    options = ConfigOptions(p, ProtocolConfig, ProtocolConfig(), skip=("policy_paths",), fields=PROTOCOL_FIELDS)
+    p.set_defaults(func=run, config_options=options)
 
 
 def config_from_args(args: argparse.Namespace) -> ProtocolConfig:
-    """The :class:`ProtocolConfig` the command line asks for."""
-    policies = {}
-    if args.marlander_policy is not None:
-        policies["marlander"] = args.marlander_policy
-    if args.single_agent_policy is not None:
-        policies["single-agent-apf"] = args.single_agent_policy
-    if args.marlander_plus_policy is not None:
-        policies["marlander-plus"] = args.marlander_plus_policy
-    config = ProtocolConfig(
-        simulator=args.simulator,
-        controllers=args.controllers or PAPER_CONTROLLERS,
-        conditions=args.conditions,
-        trials=QUICK_TRIALS if args.quick else args.trials,
-        seed=args.seed,
-        sensing=args.sensing,
-        time_limit_s=args.time_limit,
-        policy_paths=policies,
-        workers=args.workers,
-    )
-    return config
+    """The :class:`ProtocolConfig` the command line asks for: the defaults, then the options given."""
+    config = args.config_options.apply(ProtocolConfig(), args)
+    policies = {name: getattr(args, dest) for name, dest in POLICY_DESTS.items() if getattr(args, dest) is not None}
+    return replace(config, policy_paths=policies, trials=QUICK_TRIALS if args.quick else config.trials)
 
 
 def partial_reasons(config: ProtocolConfig, quick: bool, controllers: tuple[str, ...]) -> list[str]:
@@ -185,12 +201,12 @@ def plan_output(args: argparse.Namespace) -> tuple[ProtocolConfig, Path, Path | 
     """
     if args.update_shipped and args.quick:
         raise ValueError("--update-shipped needs a full run; drop --quick.")
-    shipped_folder = RESULTS_ROOT / args.simulator
+    config = config_from_args(args)
+    shipped_folder = RESULTS_ROOT / config.simulator
     if args.update_shipped:
         out = args.out or shipped_folder
-        if args.controllers is None and not args.report_only:
-            args.controllers = _shipped_controllers(out)
-    config = config_from_args(args)
+        if "controllers" not in args.config_options.given(args) and not args.report_only:
+            config = replace(config, controllers=_shipped_controllers(out))  # type: ignore[arg-type]
     if args.update_shipped:
         reasons = [] if args.report_only else partial_reasons(config, args.quick, _shipped_controllers(out))
         if reasons:
@@ -242,7 +258,7 @@ def acquire_lock(folder: Path) -> Path:
             pid = _lock_pid(lock)
             if pid is not None and _running(pid):
                 raise FileExistsError(
-                    f"--out {folder} is in use by another 'marlander reproduce' (PID {pid}, lock file {lock}); "
+                    f"--out {folder} is in use by another marlander command (PID {pid}, lock file {lock}); "
                     "wait for it to finish or choose another --out."
                 ) from None
             print(f"Taking over the stale lock {lock} (PID {pid} is not running).", file=sys.stderr)
@@ -278,6 +294,8 @@ def _running(pid: int) -> bool:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.address is not None and args.backend != "ray":
+        raise ValueError("--address applies to --backend ray only.")
     config, out, doc = plan_output(args)
     if not args.report_only:
         check_policies(config)  # a missing policy file stops the run before any folder is made
@@ -300,7 +318,7 @@ def _run_locked(args: argparse.Namespace, config: ProtocolConfig, out: Path, doc
         flight_s = None
     else:
         print(f"marlander reproduce: {_describe(config)} -> {out}", file=sys.stderr)
-        records = run_protocol(config, progress=_progress)
+        records = run_protocol(config, progress=_progress, backend=args.backend, address=args.address)
         flight_s = time.perf_counter() - started
         print(file=sys.stderr)
         # Tables come from the CSV as written (4-decimal cm), so --report-only rebuilds them exactly.
@@ -387,6 +405,7 @@ def command_line(config: ProtocolConfig, out: Path, update_shipped: bool = False
     for flag, name in flags:
         if name in config.policy_paths:
             parts.append(f"{flag} {config.policy_paths[name]}")
+    parts += changed_options(config, ProtocolConfig(), skip=COMMAND_LINE_FIELDS)  # --num-drones, --apf.*, ...
     return " ".join([*parts, f"--out {out}"])
 
 

@@ -16,17 +16,15 @@ environment in one process.
 
 from __future__ import annotations
 
-import concurrent.futures as futures
-import importlib
-import multiprocessing
 import zlib
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, get_args
 
 import numpy as np
 
+from marlander_lite.distributed import Backend, map_jobs
 from marlander_lite.envs.options import policy_input
 from marlander_lite.episodes import LandingEpisodes
 from marlander_lite.experiments.apf import APFConfig
@@ -41,9 +39,10 @@ from marlander_lite.experiments.controllers import (
     check_controller_name,
 )
 from marlander_lite.experiments.metrics import TrialMetrics
-from marlander_lite.make import SIMULATORS, SimulatorName
+from marlander_lite.make import SimulatorName
 from marlander_lite.platforms import PlatformConfig, PlatformKind
 from marlander_lite.sensing import SensingConfig
+from marlander_lite.simulators import simulator_entry
 from marlander_lite.task import TaskConfig
 
 ConditionName = Literal[
@@ -154,8 +153,7 @@ class ProtocolConfig:
     """Trials per unit of work; fixed, so the results do not depend on ``workers``."""
 
     def __post_init__(self) -> None:
-        if self.simulator not in SIMULATORS:
-            raise ValueError(f"Unknown simulator {self.simulator!r}; allowed: {', '.join(SIMULATORS)}.")
+        simulator_entry(self.simulator)  # an unknown name raises, listing the registered ones
         if not self.controllers:
             raise ValueError(f"Give at least one controller; allowed: {', '.join(CONTROLLERS)}.")
         for name in self.controllers:
@@ -257,22 +255,15 @@ class Trajectory:
     metrics: TrialMetrics
 
 
-SIMULATOR_CLASSES: dict[str, str] = {
-    "pointmass": "marlander_lite.pointmass.simulator:PointMassSwarm",
-    "crazyflie": "marlander_lite.crazyflie.simulator:CrazyflieSwarm",
-}
-"""The :class:`~marlander_lite.episodes.Simulator` of each back end, imported on first use (PyBullet only if asked)."""
-
-
 def make_episodes(config: ProtocolConfig, cond: Condition, controller_name: str | None = None) -> LandingEpisodes:
     """A one-swarm :class:`LandingEpisodes` of ``config.simulator`` for ``cond``, with ``config``'s sensing.
 
-    The simulator is built as ``Swarm(task, platform, num_envs=1)`` with its default physics; the
-    episodes are the same MDP the gym, SB3 and PettingZoo faces wrap. ``controller_name`` picks the
-    observation layout its policy asks for (:meth:`ProtocolConfig.task`).
+    The simulator is the registry's class (:func:`~marlander_lite.simulators.simulator_entry`, imported on
+    first use: PyBullet only if asked), built as ``Swarm(task, platform, num_envs=1)`` with its default
+    physics; the episodes are the same MDP the gym, SB3 and PettingZoo faces wrap. ``controller_name``
+    picks the observation layout its policy asks for (:meth:`ProtocolConfig.task`).
     """
-    module, name = SIMULATOR_CLASSES[config.simulator].split(":")
-    swarm = getattr(importlib.import_module(module), name)
+    swarm = simulator_entry(config.simulator).swarm_class()
     simulator = swarm(config.task(controller_name), cond.platform(), 1)
     return LandingEpisodes(simulator, config.sensing_config())
 
@@ -346,18 +337,32 @@ def check_policies(config: ProtocolConfig) -> None:
         build_controller(config.spec(name), config.task(name))
 
 
-def run_protocol(config: ProtocolConfig, progress: Callable[[int, int], Any] | None = None) -> list[TrialRecord]:
+def run_protocol(
+    config: ProtocolConfig,
+    progress: Callable[[int, int], Any] | None = None,
+    *,
+    backend: Backend = "local",
+    address: str | None = None,
+) -> list[TrialRecord]:
     """Fly every trial of ``config`` and return the records sorted by controller, condition, trial.
 
     Args:
         config: the run.
         progress: called as ``progress(done_trials, total_trials)`` after each finished block.
+        backend: ``local`` (``config.workers`` processes here) or ``ray`` (one Ray task per block of trials,
+            :func:`marlander_lite.distributed.map_jobs`). Every trial has its own seed, so the records are the
+            same whichever backend flies them. On a multi-machine cluster every node needs the policy files at
+            the paths ``config`` names (e.g. the project on a shared file system).
+        address: the Ray cluster (``None``: a private one on this machine, ``auto``, or ``HOST:PORT``).
     """
     check_policies(config)
     units = plan(config)
     total = sum(len(u.trials) for u in units)
     records: list[TrialRecord] = []
-    for block in _execute(config, units):
+    jobs = [(config, unit) for unit in units]
+    for _, block in map_jobs(_run_job, jobs, backend=backend, workers=config.workers, address=address):
+        if isinstance(block, Exception):
+            raise block
         records.extend(block)
         if progress is not None:
             progress(len(records), total)
@@ -367,17 +372,8 @@ def run_protocol(config: ProtocolConfig, progress: Callable[[int, int], Any] | N
     return records
 
 
-def _execute(config: ProtocolConfig, units: list[WorkUnit]) -> Iterator[list[TrialRecord]]:
-    if config.workers == 1 or len(units) == 1:
-        for unit in units:
-            yield run_unit(config, unit)
-        return
-    # fork starts workers without re-importing torch and friends; elsewhere fall back to spawn.
-    method = "fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn"
-    with futures.ProcessPoolExecutor(config.workers, mp_context=multiprocessing.get_context(method)) as pool:
-        jobs = [pool.submit(run_unit, config, unit) for unit in units]
-        for job in futures.as_completed(jobs):
-            yield job.result()
+def _run_job(job: tuple[ProtocolConfig, WorkUnit]) -> list[TrialRecord]:
+    return run_unit(*job)
 
 
 def record_trajectory(config: ProtocolConfig, controller_name: str, condition_name: str, trial: int = 0) -> Trajectory:

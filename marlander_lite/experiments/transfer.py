@@ -23,7 +23,6 @@ one a real Crazyflie can follow:
 from __future__ import annotations
 
 import hashlib
-import importlib
 import json
 import multiprocessing
 import time
@@ -40,6 +39,8 @@ from marlander_lite.episodes import LandingEpisodes
 from marlander_lite.experiments.metrics import wilson_interval
 from marlander_lite.experiments.protocol import trial_seed
 from marlander_lite.policy_file import MLPPolicy, load_policy
+from marlander_lite.rotations import tilt_deg
+from marlander_lite.simulators import simulator_entry
 
 NEAR_PAD = 0.5
 """Distance to the goal (m) within which commanded speeds are measured, and horizontal distance at which the
@@ -132,7 +133,6 @@ def _find_row(name: str) -> Row:
 
 def build_episodes(policy: MLPPolicy, column: Column, row: Row, sensing: str) -> LandingEpisodes:
     """One swarm of ``column``'s simulator on ``row``'s platform, with the policy's task and no training aid."""
-    builder = importlib.import_module(f"marlander_lite.{column.simulator}.envs").build_simulator
     task_fields = {**policy.contract.task, **training_aids.TRAINING_AIDS_OFF}
     options = dict(
         num_drones=policy.contract.num_drones,
@@ -142,7 +142,8 @@ def build_episodes(policy: MLPPolicy, column: Column, row: Row, sensing: str) ->
         sensing=sensing,
         **column.options,
     )
-    simulator, sensing_config = builder(**options)
+    options_class = simulator_entry(column.simulator).options_class()
+    simulator, sensing_config = options_class.from_keywords(options, where=f"transfer column {column.name!r}").build(1)
     return LandingEpisodes(simulator, sensing_config)
 
 
@@ -179,8 +180,7 @@ def fly_cell(policy_path: str, column_name: str, row_name: str, episodes: int, s
                 first_near = flying & ~approached & (horizontal <= NEAR_PAD)
                 heights.extend(rel_pos[first_near, 2].tolist())
                 approached |= horizontal <= NEAR_PAD
-                quat = s.quat[0]
-                tilt = np.degrees(np.arccos(np.clip(1.0 - 2.0 * (quat[:, 0] ** 2 + quat[:, 1] ** 2), -1.0, 1.0)))
+                tilt = tilt_deg(s.quat[0])
                 tilt_steps += int(flying.sum())
                 saturated_steps += int((flying & (tilt >= TILT_LIMIT_DEG - 1.0)).sum())
                 contact = (outcome.landed_now[0] | outcome.crashed[0]) & ~touched

@@ -1,40 +1,47 @@
-"""The point-mass simulator's three faces: gymnasium, stable-baselines3 VecEnv, PettingZoo."""
+"""The point-mass simulator's options and three faces: gymnasium, stable-baselines3 VecEnv, PettingZoo."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 from marlander_lite.envs.gym_env import SwarmLandingEnv
-from marlander_lite.envs.options import COMMON_OPTIONS, build_configs, check_num_envs, reject_unknown
+from marlander_lite.envs.options import EnvOptions, config_from_mapping
 from marlander_lite.envs.parallel_env import SwarmParallelEnv
 from marlander_lite.envs.vec_env import LandingVecEnv
-from marlander_lite.platforms import PlatformConfig
 from marlander_lite.pointmass.simulator import PointMassParams, PointMassSwarm
 from marlander_lite.sensing import SensingConfig
-from marlander_lite.task import TaskConfig
-
-POINTMASS_OPTIONS = (*COMMON_OPTIONS, "dynamics")
 
 
-def build_simulator(
-    num_envs: int = 1,
-    num_drones: int = 2,
-    platform: str | PlatformConfig = "static-floor",
-    platform_speed: float | tuple[float, float] | None = None,
-    task: TaskConfig | dict | None = None,
-    sensing: SensingConfig | str | None = None,
-    dynamics: PointMassParams | dict | None = None,
-) -> tuple[PointMassSwarm, SensingConfig]:
-    """Validate the options (see :class:`PointMassLandingEnv`) and build the simulator."""
-    check_num_envs(num_envs)
-    task_config, platform_config, sensing_config = build_configs(num_drones, platform, platform_speed, task, sensing)
-    if isinstance(dynamics, dict):
-        known = set(PointMassParams.__dataclass_fields__)
-        unknown = sorted(set(dynamics) - known)
-        if unknown:
-            raise TypeError(f"Unknown dynamics field(s) {unknown}; allowed: {sorted(known)}.")
-        dynamics = PointMassParams(**dynamics)
-    return PointMassSwarm(task_config, platform_config, int(num_envs), dynamics), sensing_config
+@dataclass(frozen=True)
+class PointMassOptions(EnvOptions):
+    """The options of the point-mass envs: the common :class:`~marlander_lite.envs.options.EnvOptions` and
+    the velocity tracker's dynamics."""
+
+    dynamics: PointMassParams | Mapping[str, Any] | None = None
+    """A :class:`~marlander_lite.pointmass.simulator.PointMassParams`, a mapping of its fields, or ``None``
+    for the defaults (fitted to the PyBullet Crazyflie)."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _ = self.dynamics_params
+
+    @property
+    def dynamics_params(self) -> PointMassParams | None:
+        """``dynamics`` as a :class:`PointMassParams` (``None``: the simulator's defaults)."""
+        if isinstance(self.dynamics, Mapping):
+            return config_from_mapping(PointMassParams, self.dynamics, "dynamics (PointMassParams)")
+        return self.dynamics
+
+    def make_simulator(self, num_envs: int = 1) -> PointMassSwarm:
+        """``num_envs`` point-mass swarms in one set of numpy arrays."""
+        return PointMassSwarm(self.task_config, self.platform_config, num_envs, self.dynamics_params)
+
+
+def build_simulator(num_envs: int = 1, **options: Any) -> tuple[PointMassSwarm, SensingConfig]:
+    """``(simulator, sensing)`` from :class:`PointMassOptions` fields given as keywords."""
+    return PointMassOptions.from_keywords(options, where="pointmass build_simulator").build(num_envs)
 
 
 class PointMassLandingEnv(SwarmLandingEnv):
@@ -75,40 +82,24 @@ class PointMassLandingEnv(SwarmLandingEnv):
     ``episode_seconds`` (10 s, 240 steps at 24 Hz).
 
     ## Arguments
-    ``gymnasium.make("marlander_lite/PointMassLanding-v0", num_drones=2, platform="static-floor",
-    platform_speed=None, task=None, sensing=None, dynamics=None)``: ``platform`` is one of
+    ``gymnasium.make("marlander_lite/PointMassLanding-v0", **fields)`` with the fields of
+    :class:`PointMassOptions` (``num_drones=2, platform="static-floor", platform_speed=None, task=None,
+    sensing=None, dynamics=None``), or ``options=PointMassOptions(...)``: ``platform`` is one of
     ``static-floor``, ``static-elevated``, ``moving-linear``, ``moving-arc``; ``platform_speed`` the
     moving tool speed (m/s, default 0.35); ``task`` a :class:`TaskConfig` or dict of fields to change;
     ``sensing`` a :class:`SensingConfig` or ``"vicon"`` for motion-capture noise and latency;
     ``dynamics`` a :class:`~marlander_lite.pointmass.simulator.PointMassParams` or a dict of its fields.
     """
 
-    def __init__(
-        self,
-        num_drones: int = 2,
-        platform: str | PlatformConfig = "static-floor",
-        platform_speed: float | tuple[float, float] | None = None,
-        task: TaskConfig | dict | None = None,
-        sensing: SensingConfig | str | None = None,
-        dynamics: PointMassParams | dict | None = None,
-        **unknown: Any,
-    ) -> None:
-        reject_unknown(unknown, POINTMASS_OPTIONS, "PointMassLanding-v0")
-        super().__init__(*build_simulator(1, num_drones, platform, platform_speed, task, sensing, dynamics))
+    def __init__(self, options: PointMassOptions | None = None, **fields: Any) -> None:
+        options = PointMassOptions.from_keywords(fields, options, "PointMassLanding-v0")
+        super().__init__(*options.build())
 
 
-def pointmass_parallel_env(
-    num_drones: int = 2,
-    platform: str | PlatformConfig = "static-floor",
-    platform_speed: float | tuple[float, float] | None = None,
-    task: TaskConfig | dict | None = None,
-    sensing: SensingConfig | str | None = None,
-    dynamics: PointMassParams | dict | None = None,
-    **unknown: Any,
-) -> SwarmParallelEnv:
+def pointmass_parallel_env(options: PointMassOptions | None = None, **fields: Any) -> SwarmParallelEnv:
     """PettingZoo ``ParallelEnv`` of the point-mass swarm; options as :class:`PointMassLandingEnv`."""
-    reject_unknown(unknown, POINTMASS_OPTIONS, "pointmass_parallel_env")
-    return SwarmParallelEnv(*build_simulator(1, num_drones, platform, platform_speed, task, sensing, dynamics))
+    options = PointMassOptions.from_keywords(fields, options, "pointmass_parallel_env")
+    return SwarmParallelEnv(*options.build())
 
 
 class PointMassVecEnv(LandingVecEnv):
@@ -118,19 +109,7 @@ class PointMassVecEnv(LandingVecEnv):
     """
 
     def __init__(
-        self,
-        num_envs: int = 1,
-        num_drones: int = 2,
-        platform: str | PlatformConfig = "static-floor",
-        platform_speed: float | tuple[float, float] | None = None,
-        task: TaskConfig | dict | None = None,
-        sensing: SensingConfig | str | None = None,
-        dynamics: PointMassParams | dict | None = None,
-        seed: int | None = None,
-        **unknown: Any,
+        self, num_envs: int = 1, seed: int | None = None, options: PointMassOptions | None = None, **fields: Any
     ) -> None:
-        reject_unknown(unknown, (*POINTMASS_OPTIONS, "num_envs", "seed"), "PointMassVecEnv")
-        simulator, sensing_config = build_simulator(
-            num_envs, num_drones, platform, platform_speed, task, sensing, dynamics
-        )
-        super().__init__(simulator, sensing_config, seed)
+        options = PointMassOptions.from_keywords(fields, options, "PointMassVecEnv", ("num_envs", "seed"))
+        super().__init__(*options.build(num_envs), seed)

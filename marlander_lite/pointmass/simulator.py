@@ -9,7 +9,9 @@ no Python loop over environments. The attitude is the thrust axis, so eq. 2's ``
 
 Speed note: every batched array is Fortran-ordered, so ``pos[..., 0]`` is one contiguous
 plane and per-environment values broadcast over drones without short inner loops. Numpy keeps
-that layout through arithmetic; see ``benchmarks/bench_pointmass.py``.
+that layout through arithmetic; the row-major commands of :func:`marlander_lite.task.action_to_velocity`
+are copied into it once per step. The layout is a speed choice only: ``tests/test_task.py`` checks
+that it changes no bit of a flight or of an observation. See ``benchmarks/bench_pointmass.py``.
 """
 
 from __future__ import annotations
@@ -126,6 +128,9 @@ class PointMassSwarm:
         self._half_x, self._half_y = geometry.half_extents(n)
         self._pad_radius_sq = geometry.pad_radius**2
         self._lift = geometry.pad_thickness + task_config.landed_height
+        # Beyond the paper: an inclined plate (platforms.PlateGeometry.inclination_deg); level plates keep the
+        # horizontal test of _surface bit for bit.
+        self._rotation = geometry.rotation() if geometry.inclination_deg else None
         self._dt = task_config.dt
         # Per-env response (arrays so that domain randomisation can vary them per episode).
         prm = self.params
@@ -180,6 +185,9 @@ class PointMassSwarm:
         self.motors_stopped[env_ids] = False
 
     def step(self, velocity: np.ndarray) -> None:
+        # One copy of the (row-major) commands into the engine's layout keeps every operation below on
+        # contiguous planes; mixing layouts costs more than the copy.
+        velocity = np.asfortranarray(velocity)
         if self.family is None:
             accel, axis = self._thrust(velocity)
         else:
@@ -352,6 +360,8 @@ class PointMassSwarm:
 
     def _surface(self) -> tuple[np.ndarray, np.ndarray]:
         """Height a drone at its current x, y rests at (floor or plate), and whether it is over its own pad."""
+        if self._rotation is not None:
+            return self._inclined_surface()
         rx = self.pos[..., 0] - self._plate_pos[:, 0:1]
         ry = self.pos[..., 1] - self._plate_pos[:, 1:2]
         over_plate = (np.abs(rx) <= self._half_x) & (np.abs(ry) <= self._half_y)
@@ -360,6 +370,26 @@ class PointMassSwarm:
         # The pads are 2.5 mm thick: anywhere over the plate counts as pad height, a conservative bound.
         rest_height = np.where(over_plate, self._plate_pos[:, 2:3] + self._lift, self.task.landed_height)
         return rest_height, on_own_pad
+
+    def _inclined_surface(self) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`_surface` on a tilted plate, judged in the plate frame.
+
+        A drone is over the plate when its plate-frame ``x, y`` (``R^T (p - plate)``) lie within the half
+        extents, and over its own pad when its offset from the pad centre *within the pad plane* is at most
+        the pad radius. It rests where its centre is ``pad_thickness + landed_height`` above the plate along
+        the normal ``n``: at ``z = plate_z - (n_x dx + n_y dy) / n_z + lift / n_z``.
+        """
+        rot = self._rotation
+        assert rot is not None
+        n = rot[:, 2]
+        d = self.pos - self._plate_pos[:, None, :]
+        local = d @ rot  # plate-frame coordinates, R^T d for every drone
+        over_plate = (np.abs(local[..., 0]) <= self._half_x) & (np.abs(local[..., 1]) <= self._half_y)
+        e = self.pos - self._pads
+        along = e @ n
+        on_own_pad = np.einsum("...k,...k->...", e, e) - along * along <= self._pad_radius_sq
+        plane = self._plate_pos[:, 2:3] - (n[0] * d[..., 0] + n[1] * d[..., 1] - self._lift) / n[2]
+        return np.where(over_plate, plane, self.task.landed_height), on_own_pad
 
     def _resolve_contacts(self, start: np.ndarray) -> None:
         """Stop drones at the floor or the plate and report what they touch.

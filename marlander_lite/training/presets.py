@@ -35,8 +35,9 @@ class TrainConfig:
     platform_height: tuple[float, float] | None = None
     """Plate top height range for UR10-held kinds (m); None keeps 0.5-1.0; (0.005, 1.0) covers the floor too."""
     sensing: str = "perfect"
-    """``perfect``, ``vicon`` (motion-capture noise and latency on observations) or ``noisy`` (vicon with far more
-    attitude and body-rate noise, a training aid; :meth:`~marlander_lite.sensing.SensingConfig.noisy`)."""
+    """``perfect``, ``vicon`` (motion-capture noise and latency on observations), ``noisy`` (vicon with far more
+    attitude and body-rate noise, a training aid; :meth:`~marlander_lite.sensing.SensingConfig.noisy`) or ``robust``
+    (noisy with the delay drawn per episode within 0-40 ms; :meth:`~marlander_lite.sensing.SensingConfig.robust`)."""
     task: dict[str, Any] = field(default_factory=dict)
     """Overrides of :class:`~marlander_lite.task.TaskConfig` fields."""
     dynamics: dict[str, Any] = field(default_factory=dict)
@@ -103,8 +104,8 @@ class TrainConfig:
             problems.append(f"simulator must be one of {SIMULATORS}, got {self.simulator!r}")
         if self.platform not in PLATFORM_KINDS:
             problems.append(f"platform must be one of {PLATFORM_KINDS}, got {self.platform!r}")
-        if self.sensing not in ("perfect", "vicon", "noisy"):
-            problems.append(f"sensing must be 'perfect', 'vicon' or 'noisy', got {self.sensing!r}")
+        if self.sensing not in ("perfect", "vicon", "noisy", "robust"):
+            problems.append(f"sensing must be 'perfect', 'vicon', 'noisy' or 'robust', got {self.sensing!r}")
         if self.activation not in get_args(Activation):
             problems.append(f"activation must be one of {get_args(Activation)}, got {self.activation!r}")
         if self.lr_schedule not in get_args(Schedule):

@@ -39,12 +39,13 @@ from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 import marlander_lite
-from marlander_lite.envs.options import build_configs
+from marlander_lite.envs.options import EnvOptions
 from marlander_lite.make import make_vec_env
 from marlander_lite.platforms import PlatformConfig
 from marlander_lite.task import TaskConfig
 from marlander_lite.training.export import export_policy
 from marlander_lite.training.presets import TrainConfig
+from marlander_lite.training.provenance import code_version, policy_digest
 from marlander_lite.training.resume import (
     RESUME_DIR,
     CheckpointOnStop,
@@ -91,7 +92,8 @@ class RunFiles:
 
 def task_config_of(config: TrainConfig) -> TaskConfig:
     """The :class:`TaskConfig` a training config resolves to."""
-    return build_configs(config.num_drones, config.platform, config.platform_speed, config.task, config.sensing)[0]
+    options = EnvOptions(config.num_drones, config.platform, config.platform_speed, config.task, config.sensing)
+    return options.task_config
 
 
 def make_training_env(config: TrainConfig, num_envs: int | None = None, seed: int | None = None) -> VecEnv:
@@ -184,6 +186,7 @@ def _write_config(files: RunFiles, config: TrainConfig, preset: str | None) -> N
             "python": python_platform.python_version(),
         },
         "started": time.strftime("%Y-%m-%dT%H:%M:%S"),
+        "provenance": code_version(),
     }
     files.config.write_text(json.dumps(record, indent=2))
 
@@ -382,6 +385,7 @@ def _learn(
         model, files.policy, task_config_of(config), env if config.normalize_observations else None, extra=extra
     )
     record["finished"] = {"seconds": record.pop("seconds_so_far"), "steps": int(model.num_timesteps)}
+    record.setdefault("provenance", {})["policy_digest"] = policy_digest(files.policy)
     files.config.write_text(json.dumps(record, indent=2))
     for leftover in (RESUME_DIR, RESUME_DIR + ".partial"):  # the run is whole: no checkpoint to resume from
         shutil.rmtree(files.root / leftover, ignore_errors=True)

@@ -35,7 +35,7 @@ from cflib.crazyflie.toccache import TocCache
 from cflib.crtp.crtpstack import CRTPPacket, CRTPPort
 from cflib.utils.callbacks import Caller
 
-from marlander_lite.deploy.virtual_firmware import PROTOCOL_VERSION, VirtualFirmware
+from marlander_lite.deploy.rehearsal.virtual_firmware import PROTOCOL_VERSION, VirtualFirmware
 
 
 class _Platform:

@@ -10,8 +10,6 @@ where every drone ended up, checked against the simulator's ground truth.
 
 from __future__ import annotations
 
-import dataclasses
-import datetime
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,15 +17,15 @@ from typing import Any
 
 import numpy as np
 
-from marlander_lite.deploy.config import LabConfig, load_lab_policy
-from marlander_lite.deploy.faults import FaultInjector, FaultSpec
-from marlander_lite.deploy.flight_log import FlightLogWriter
+from marlander_lite.deploy.config import LabConfig, current_simulator_name, load_lab_policy
+from marlander_lite.deploy.flight_log import FlightLogWriter, flight_header
 from marlander_lite.deploy.link import CrazyflieLink
 from marlander_lite.deploy.mission import Mission
-from marlander_lite.deploy.pose_sources import SimulatedPoseSource
+from marlander_lite.deploy.rehearsal.faults import FaultInjector, FaultSpec
+from marlander_lite.deploy.rehearsal.mocap import SimulatedPoseSource
+from marlander_lite.deploy.rehearsal.world import SimulatedWorld, make_simulator
 from marlander_lite.deploy.results import MissionResult
 from marlander_lite.deploy.runner import Policy
-from marlander_lite.deploy.sim_world import SimulatedWorld, make_simulator
 
 
 @dataclass
@@ -102,22 +100,6 @@ class RehearsalResult:
         return "\n".join(lines)
 
 
-def flight_header(lab: LabConfig, policy: Policy, **extra: Any) -> dict[str, Any]:
-    """The header record of a flight log."""
-    contract = getattr(policy, "contract", None)
-    return {
-        "started": datetime.datetime.now(datetime.timezone.utc).isoformat(),
-        "drones": lab.drone_names,
-        "pads": [d.pad for d in lab.drones],
-        "pad_bodies": [p.body for p in lab.drone_pads()],
-        "loop_hz": lab.rates.loop_hz,
-        "policy_hz": lab.rates.policy_hz,
-        "config": dataclasses.asdict(lab),
-        "policy": None if contract is None else dataclasses.asdict(contract),
-        **extra,
-    }
-
-
 def rehearse(
     lab: LabConfig,
     policy: Policy | str | Path,
@@ -136,7 +118,8 @@ def rehearse(
     Args:
         lab: the lab config (its ``simulation`` section sets the platform, noise and seed).
         policy: a policy file (loaded and checked with :func:`load_lab_policy`) or a policy object.
-        simulator: ``pybullet`` or ``pointmass``; default: ``lab.simulation.simulator``.
+        simulator: ``crazyflie`` (PyBullet) or ``pointmass``; default: ``lab.simulation.simulator`` (the old
+            name ``pybullet`` still works, with a ``FutureWarning``).
         fault: a fault to inject, or None.
         seed: overrides ``lab.simulation.seed``.
         log_path: where to write the flight log (None: no log).
@@ -153,7 +136,7 @@ def rehearse(
         policy = load_lab_policy(policy, lab)
     sim_cfg = lab.simulation
     seed = sim_cfg.seed if seed is None else seed
-    kind = simulator or sim_cfg.simulator
+    kind = current_simulator_name(simulator, "simulator", stacklevel=2) if simulator else sim_cfg.simulator
     if fault is not None:
         fault.check(lab.num_drones, fault_time_limit(lab))
     world = SimulatedWorld(lab, make_simulator(lab, kind, controller=controller), seed=seed)

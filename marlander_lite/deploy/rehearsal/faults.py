@@ -29,12 +29,13 @@ from typing import TYPE_CHECKING, Literal, get_args
 
 import numpy as np
 
+from marlander_lite.deploy.modes import MissionMode
 from marlander_lite.deploy.runner import Policy
 
 if TYPE_CHECKING:
     from marlander_lite.deploy.mission import Mission
-    from marlander_lite.deploy.pose_sources import SimulatedPoseSource
-    from marlander_lite.deploy.sim_world import SimulatedWorld
+    from marlander_lite.deploy.rehearsal.mocap import SimulatedPoseSource
+    from marlander_lite.deploy.rehearsal.world import SimulatedWorld
 
 FaultKind = Literal["dropout", "latency-spike", "occlusion", "nan-pose", "link-loss", "geofence-breach"]
 FAULT_KINDS: tuple[str, ...] = get_args(FaultKind)
@@ -110,7 +111,7 @@ class FaultInjector:
         spec = self.spec
         if self.started_at is not None or mission.policy_start is None or t < mission.policy_start + spec.start_s:
             return
-        if mission.mode != "policy":
+        if mission.mode != MissionMode.POLICY:
             return
         self.started_at = t
         until = self.world.time + spec.duration

@@ -20,22 +20,20 @@ in the same tick), and a restart while another drone flies is logged as an event
 
 from __future__ import annotations
 
-import importlib
 import inspect
 from typing import Any, Literal, get_args
 
 import numpy as np
 
 from marlander_lite import task
-from marlander_lite.deploy.config import ConfigError, LabConfig
-from marlander_lite.deploy.virtual_crazyflie import VirtualCfFactory
-from marlander_lite.deploy.virtual_firmware import VirtualFirmware
+from marlander_lite.deploy.config import ConfigError, LabConfig, current_simulator_name
+from marlander_lite.deploy.rehearsal.virtual_crazyflie import VirtualCfFactory
+from marlander_lite.deploy.rehearsal.virtual_firmware import VirtualFirmware
 from marlander_lite.platforms import PlateGeometry, PlatformConfig
 from marlander_lite.rotations import IDENTITY_QUAT
+from marlander_lite.simulators import simulator_entry
 from marlander_lite.task import TaskConfig
 
-PYBULLET_SIMULATOR = "marlander_lite.crazyflie.simulator:CrazyflieSwarm"
-"""Where the PyBullet Crazyflie swarm lives."""
 FLOOR_CONTACT_TOLERANCE = 0.05
 """A falling drone's centre sinks up to this far below the floor (the fence's lower bound) when it hits it in
 PyBullet after a fall of up to 2.5 m (m): contact penetration, not a drone leaving the fence."""
@@ -68,42 +66,34 @@ def world_platform(lab: LabConfig) -> PlatformConfig:
 
 
 def make_simulator(lab: LabConfig, kind: str | None = None, controller: Controller | None = None) -> Any:
-    """The swarm simulator for ``kind`` (``pybullet`` or ``pointmass``; default: the config's).
+    """The one-environment swarm simulator ``kind`` of :mod:`marlander_lite.simulators` for the lab's world.
 
     Args:
         lab: the lab config.
-        kind: ``pybullet`` or ``pointmass``; default: ``lab.simulation.simulator``.
+        kind: a simulator's name, ``crazyflie`` (the PyBullet Crazyflie swarm) or ``pointmass``; default:
+            ``lab.simulation.simulator``. The old name ``pybullet`` still works, with a ``FutureWarning``.
         controller: how the PyBullet drones track their velocity setpoints: ``firmware`` (the
             default: the Crazyflie firmware's velocity tracker, what runs on the drone) or ``pid``
-            (the simulator's own cascaded PID, the one the policies were trained with). The point
-            mass has no controller and ignores it. A PyBullet swarm too old to know the firmware
-            tracker falls back to its PID unless ``firmware`` is asked for explicitly.
+            (the simulator's own cascaded PID, the one the policies were trained with). A simulator
+            without a controller (the point mass) ignores it.
+
+    Raises:
+        ValueError: an unknown simulator or controller.
+        SimulatorUnavailable: the simulator's module cannot be imported (PyBullet missing, say).
     """
-    kind = kind or lab.simulation.simulator
+    kind = current_simulator_name(kind, "simulator", stacklevel=2) if kind else lab.simulation.simulator
     if controller is not None and controller not in CONTROLLERS:
         raise ValueError(f"Unknown controller {controller!r}; allowed: {', '.join(CONTROLLERS)}.")
     task_config, platform = world_task(lab), world_platform(lab)
-    if kind == "pointmass":
-        from marlander_lite.pointmass.simulator import PointMassSwarm
-
-        return PointMassSwarm(task_config, platform, num_envs=1)
-    if kind == "pybullet":
-        module, name = PYBULLET_SIMULATOR.split(":")
-        try:
-            swarm_class = getattr(importlib.import_module(module), name)
-        except (ModuleNotFoundError, AttributeError) as error:
-            raise SimulatorUnavailable(
-                f"The PyBullet Crazyflie simulator ({PYBULLET_SIMULATOR}) is not available ({error}); "
-                "rehearse with simulator 'pointmass' instead."
-            ) from None
-        if "controller" in inspect.signature(swarm_class).parameters:
-            return swarm_class(task_config, platform, controller=controller or DEFAULT_CONTROLLER)
-        if controller == "firmware":
-            raise SimulatorUnavailable(
-                f"The PyBullet Crazyflie swarm ({PYBULLET_SIMULATOR}) has no firmware controller."
-            )
-        return swarm_class(task_config, platform)
-    raise ValueError(f"Unknown simulator {kind!r}; allowed: pybullet, pointmass.")
+    entry = simulator_entry(kind)
+    try:
+        swarm_class = entry.swarm_class()
+    except (ModuleNotFoundError, AttributeError) as error:
+        hint = "; rehearse with simulator 'pointmass' instead." if kind != "pointmass" else "."
+        raise SimulatorUnavailable(f"The {kind} simulator ({entry.swarm}) is not available ({error}){hint}") from None
+    if "controller" in inspect.signature(swarm_class).parameters:
+        return swarm_class(task_config, platform, num_envs=1, controller=controller or DEFAULT_CONTROLLER)
+    return swarm_class(task_config, platform, num_envs=1)
 
 
 class SimulatedWorld:

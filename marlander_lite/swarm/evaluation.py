@@ -1,0 +1,357 @@
+"""Success, landing error, landing time, separation and collisions versus swarm size N.
+
+Each *cell* is one controller on swarms of one size N: ``trials`` episodes of the paper's task
+(random platform placement and starts in the 4 x 4 x 4 m arena, every training aid off), flown in
+``num_envs`` swarms at once, measured per trial with
+:class:`~marlander_lite.experiments.metrics.TrialMetrics` and summarised with Wilson intervals for
+rates and cluster-bootstrap intervals for the landing error
+(:func:`~marlander_lite.experiments.metrics.summarise`). Controllers (:data:`SCALING_CONTROLLERS`):
+
+``shared``       the shared policy (:class:`~marlander_lite.swarm.policy.SharedPolicy`), at any N;
+``centralised``  the paper's centralised policy, only at the N it was trained for;
+``shared-apf``   the shared policy plus the APF repulsion of the baseline (as MorphoLander adds it to a
+                 single-agent policy, Sec. IV-E), any N;
+``baseline``     PID + APF (:class:`~marlander_lite.experiments.controllers.PIDAPFController`, tuned gains), any N.
+
+Command line (writes ``scaling.csv``, ``scaling.json`` and ``scaling.md`` into ``--out``)::
+
+    python -m marlander_lite.swarm.evaluation --shared data/policies/shared-quick.safetensors \\
+        --centralised data/policies/quick-cpu.safetensors --sizes 2 4 8 16 --trials 200 --out data/results/scaling
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from marlander_lite.envs.options import policy_input
+from marlander_lite.episodes import LandingEpisodes
+from marlander_lite.experiments import apf
+from marlander_lite.experiments.apf import APFConfig
+from marlander_lite.experiments.controllers import PIDAPFController
+from marlander_lite.experiments.metrics import CellSummary, TrialMetrics, summarise, wilson_interval
+from marlander_lite.platforms import PlateGeometry, PlatformConfig
+from marlander_lite.pointmass.simulator import PointMassSwarm
+from marlander_lite.policy_file import load_policy, read_contract
+from marlander_lite.sensing import SensingConfig
+from marlander_lite.swarm.policy import SharedPolicy
+from marlander_lite.task import OBS_PER_DRONE, TaskConfig
+
+SCALING_CONTROLLERS = ("shared", "shared-apf", "centralised", "baseline")
+BatchAct = Callable[[np.ndarray], np.ndarray]
+"""Centralised observations of every env ``(E, 13 N)`` -> actions ``(E, 3 N)``."""
+
+
+@dataclass(frozen=True)
+class ScalingRow:
+    """One cell: a controller on swarms of ``num_drones`` drones."""
+
+    controller: str
+    num_drones: int
+    simulator: str
+    summary: CellSummary
+    collisions: int
+    """Trials that ended with two drones closer than the collision distance."""
+    collision_low: float
+    """Wilson 95 % interval of the collision rate, lower end."""
+    collision_high: float
+    seconds: float
+    """Wall-clock time the cell took (s), on the machine that ran it."""
+    condition: str = "static-floor"
+    """The platform: its kind, tool speed (m/s) and inclination (degrees) when not 0."""
+
+    def flat(self) -> dict[str, Any]:
+        """One flat record for a CSV row."""
+        s = asdict(self.summary)
+        s.pop("error_per_drone_cm")
+        counts = s.pop("outcome_counts")
+        return {
+            "controller": self.controller,
+            "num_drones": self.num_drones,
+            "simulator": self.simulator,
+            "condition": self.condition,
+            **s,
+            **{f"outcome_{k}": v for k, v in counts.items()},
+            "collisions": self.collisions,
+            "collision_rate": self.collisions / self.summary.trials,
+            "collision_low": self.collision_low,
+            "collision_high": self.collision_high,
+            "seconds": round(self.seconds, 1),
+        }
+
+
+def fly_trials(
+    episodes: LandingEpisodes,
+    make_actor: Callable[[np.ndarray | None], BatchAct],
+    trials: int,
+) -> list[TrialMetrics]:
+    """Fly the first ``trials`` episodes begun in ``episodes`` (all its envs at once) and measure each.
+
+    ``make_actor(None)`` builds the controller for every env; it is called again with the ids of envs
+    that start a new episode when the controller keeps state (see :class:`BatchOfControllers`). Only the first
+    ``trials`` episodes *begun* are counted, so that short episodes are not over-represented.
+    """
+    e, dt = episodes.num_envs, episodes.task.dt
+    obs = policy_input(episodes.reset())
+    act = make_actor(None)
+    started, counted = e, np.arange(e) < trials
+    results: list[TrialMetrics] = []
+    while len(results) < trials:
+        outcome = episodes.step(act(obs))
+        obs = policy_input(outcome.obs)
+        done = np.flatnonzero(outcome.done)
+        if done.size:
+            for env in done.tolist():
+                if counted[env]:
+                    results.append(TrialMetrics.from_outcome(outcome, dt, env))
+                counted[env] = started < trials
+                started += 1
+            obs[done] = policy_input(episodes.reset(done))
+            reset = getattr(act, "reset", None)
+            if reset is not None:
+                reset(done)
+    return results[:trials]
+
+
+class BatchOfControllers:
+    """Run one stateful single-swarm controller per env (e.g. PID + APF, whose integral and observer are per swarm).
+
+    ``factory()`` builds one controller (``reset()``, ``act(obs (13 N,)) -> (3 N,)``).
+    """
+
+    def __init__(self, factory: Callable[[], Any], num_envs: int) -> None:
+        self.controllers = [factory() for _ in range(num_envs)]
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        return np.stack([c.act(o) for c, o in zip(self.controllers, obs, strict=True)])
+
+    def reset(self, env_ids: np.ndarray) -> None:
+        for i in np.asarray(env_ids).tolist():
+            self.controllers[i].reset()
+
+
+def evaluation_task(num_drones: int, time_limit_s: float = 30.0, **changes: Any) -> TaskConfig:
+    """The task of every evaluation trial: the defaults (no training aid), N drones, the protocol's 30 s limit;
+    ``changes`` override other :class:`TaskConfig` fields (e.g. ``spawn_near_pad_fraction`` for a learning test)."""
+    return TaskConfig(num_drones=num_drones, episode_seconds=time_limit_s).replace(**changes)
+
+
+def make_episodes(
+    num_drones: int,
+    num_envs: int,
+    seed: int,
+    simulator: str = "pointmass",
+    platform: PlatformConfig | None = None,
+    sensing: SensingConfig | None = None,
+    time_limit_s: float = 30.0,
+    task_changes: dict[str, Any] | None = None,
+    **simulator_options: Any,
+) -> LandingEpisodes:
+    """``num_envs`` swarms of ``num_drones`` in ``simulator`` (``pointmass`` or ``crazyflie``), static floor plate
+    and Vicon sensing by default. ``simulator_options`` go to the swarm (e.g. ``controller="firmware"``)."""
+    task = evaluation_task(num_drones, time_limit_s, **(task_changes or {}))
+    platform = platform or PlatformConfig()
+    if simulator == "pointmass":
+        sim: Any = PointMassSwarm(task, platform, num_envs, **simulator_options)
+    elif simulator == "crazyflie":
+        from marlander_lite.crazyflie.simulator import CrazyflieSwarm  # PyBullet only when asked
+
+        sim = CrazyflieSwarm(task, platform, num_envs, **simulator_options)
+    else:
+        raise ValueError(f"Unknown simulator {simulator!r}; allowed: pointmass, crazyflie.")
+    return LandingEpisodes(sim, sensing or SensingConfig.vicon(), seed)
+
+
+def actor_factory(
+    controller: str, task: TaskConfig, platform: PlatformConfig, num_envs: int, policy_path: str | Path | None = None
+) -> Callable[[np.ndarray | None], BatchAct]:
+    """A :func:`fly_trials` actor builder for ``controller`` (one of :data:`SCALING_CONTROLLERS`) on ``task``."""
+    if controller == "shared":
+        if policy_path is None:
+            raise ValueError("The shared controller needs its policy file (policy_path).")
+        policy = SharedPolicy(policy_path, task, platform.geometry)
+        return lambda _ids: policy.act
+    if controller == "shared-apf":
+        if policy_path is None:
+            raise ValueError("The shared-apf controller needs its policy file (policy_path).")
+        shared = SharedPolicy(policy_path, task, platform.geometry)
+        return lambda _ids: _with_repulsion(shared, task, platform)
+    if controller == "centralised":
+        if policy_path is None:
+            raise ValueError("The centralised controller needs its policy file (policy_path).")
+        central = load_policy(policy_path, task)  # refuses a policy trained for another N
+        return lambda _ids: central.act
+    if controller == "baseline":
+        return lambda _ids: BatchOfControllers(lambda: PIDAPFController(task, geometry=platform.geometry), num_envs)
+    raise ValueError(f"Unknown controller {controller!r}; allowed: {', '.join(SCALING_CONTROLLERS)}.")
+
+
+def _with_repulsion(policy: SharedPolicy, task: TaskConfig, platform: PlatformConfig) -> BatchAct:
+    """``policy``'s actions plus the baseline's Khatib repulsion (m/s, over ``max_speed``), clipped to [-1, 1]."""
+    n, config, offsets = task.num_drones, APFConfig(), platform.geometry.pad_offsets(task.num_drones)
+
+    def act(obs: np.ndarray) -> np.ndarray:
+        actions = policy.act(obs).reshape(len(obs), n, 3)
+        for env, o in enumerate(obs):
+            p, _ = apf.split_observation(o, n)
+            actions[env] += apf.repulsion_velocity(p, offsets, config) / task.max_speed
+        return np.clip(actions, -1.0, 1.0).reshape(len(obs), 3 * n)
+
+    return act
+
+
+def evaluate_cell(
+    controller: str,
+    num_drones: int,
+    trials: int,
+    seed: int = 0,
+    policy_path: str | Path | None = None,
+    num_envs: int = 100,
+    simulator: str = "pointmass",
+    platform: PlatformConfig | None = None,
+    task_changes: dict[str, Any] | None = None,
+    simulator_options: dict[str, Any] | None = None,
+) -> ScalingRow:
+    """Fly ``trials`` trials of ``controller`` on swarms of ``num_drones`` and summarise them (``task_changes``:
+    see :func:`evaluation_task`; ``simulator_options`` go to the swarm, e.g. ``{"controller": "firmware"}``)."""
+    if isinstance(trials, bool) or not isinstance(trials, int) or trials < 1:
+        raise ValueError(f"trials must be an integer >= 1, got {trials!r}.")
+    started = time.perf_counter()
+    platform = platform or PlatformConfig()
+    # A PyBullet CrazyflieSwarm holds one world: its trials are flown one after another.
+    num_envs = 1 if simulator == "crazyflie" else min(num_envs, trials)
+    if policy_path is not None and read_contract(policy_path).obs_per_drone > OBS_PER_DRONE:
+        task_changes = {**(task_changes or {}), "observe_platform_velocity": True}  # a policy that asks for it
+    episodes = make_episodes(
+        num_drones, num_envs, seed, simulator, platform, task_changes=task_changes, **(simulator_options or {})
+    )
+    try:
+        make_actor = actor_factory(controller, episodes.task, platform, num_envs, policy_path)
+        results = fly_trials(episodes, make_actor, trials)
+    finally:
+        episodes.sim.close()
+    collisions = sum(t.min_separation_m < episodes.task.collision_distance for t in results)
+    low, high = wilson_interval(collisions, len(results))
+    return ScalingRow(
+        controller,
+        num_drones,
+        simulator,
+        summarise(results, seed=seed),
+        collisions,
+        low,
+        high,
+        time.perf_counter() - started,
+        condition_name(platform),
+    )
+
+
+def condition_name(platform: PlatformConfig) -> str:
+    """``kind``, ``kind-speed`` for moving plates, ``+ tilt N deg`` for inclined ones."""
+    name = platform.kind + (f"-{platform.resolved_speed:g}" if platform.is_moving else "")
+    tilt = platform.geometry.inclination_deg
+    return name + (f" tilt {tilt:g} deg" if tilt else "")
+
+
+def _cell_text(row: ScalingRow) -> str:
+    s = row.summary
+
+    def num(x: float, digits: int = 2) -> str:
+        return "-" if math.isnan(x) else f"{x:.{digits}f}"
+
+    return (
+        f"| {row.controller} | {row.condition} | {row.num_drones} | {s.trials} | {100 * s.success_rate:.1f} "
+        f"[{100 * s.success_low:.1f}, {100 * s.success_high:.1f}] | {num(s.error_mean_cm)} "
+        f"[{num(s.error_mean_low)}, {num(s.error_mean_high)}] | {num(s.time_mean_s)} | {num(s.min_separation_m, 3)} "
+        f"| {100 * row.collisions / s.trials:.1f} [{100 * row.collision_low:.1f}, {100 * row.collision_high:.1f}] |"
+    )
+
+
+def markdown_table(rows: Sequence[ScalingRow]) -> str:
+    """Rows as a markdown table with 95 % intervals (Wilson for rates, bootstrap for the error)."""
+    head = (
+        "| controller | platform | N | trials | success % [95 % CI] | landing error cm [95 % CI] | landing time s "
+        "| min separation m | collisions % [95 % CI] |\n|---|---|---|---|---|---|---|---|---|"
+    )
+    return "\n".join([head, *(_cell_text(r) for r in rows)])
+
+
+def write_results(rows: Sequence[ScalingRow], out: str | Path, stem: str = "scaling", note: str = "") -> Path:
+    """Write ``{stem}.csv``, ``{stem}.json`` and ``{stem}.md`` into ``out``; returns the markdown path."""
+    import csv
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    flat = [r.flat() for r in rows]
+    with open(out / f"{stem}.csv", "w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=list(flat[0]))
+        writer.writeheader()
+        writer.writerows(flat)
+    (out / f"{stem}.json").write_text(json.dumps(flat, indent=2))
+    md = out / f"{stem}.md"
+    md.write_text((note + "\n\n" if note else "") + markdown_table(rows) + "\n")
+    return md
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description="Evaluate swarm landing versus the number of drones.")
+    parser.add_argument("--shared", help="shared policy file")
+    parser.add_argument("--centralised", help="centralised policy file (flown at its own N only)")
+    parser.add_argument("--baseline", action="store_true", help="also fly PID + APF at every N")
+    parser.add_argument("--shared-apf", action="store_true", help="also fly the shared policy + APF repulsion")
+    parser.add_argument("--sizes", type=int, nargs="+", default=[2, 4, 8, 16])
+    parser.add_argument("--trials", type=int, default=200)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--simulator", default="pointmass", choices=("pointmass", "crazyflie"))
+    parser.add_argument("--firmware", action="store_true", help="crazyflie: the firmware velocity tracker")
+    parser.add_argument("--num-envs", type=int, default=100)
+    parser.add_argument("--out", required=True)
+    parser.add_argument("--stem", default="scaling")
+    parser.add_argument("--platform", default="static-floor", help="platform kind (marlander_lite.platforms)")
+    parser.add_argument("--speeds", type=float, nargs="+", default=[None], help="tool speeds of a moving platform")
+    parser.add_argument("--inclinations", type=float, nargs="+", default=[0.0], help="plate tilts (degrees)")
+    args = parser.parse_args(argv)
+    options = {"controller": "firmware"} if args.firmware else {}
+    platforms = [
+        PlatformConfig(kind=args.platform, speed=speed, geometry=PlateGeometry(inclination_deg=tilt))
+        for speed in args.speeds
+        for tilt in args.inclinations
+    ]
+    cells: list[tuple[str, int, str | None, PlatformConfig]] = []
+    for platform in platforms:
+        for n in args.sizes:
+            if args.shared:
+                cells.append(("shared", n, args.shared, platform))
+            if args.shared and args.shared_apf:
+                cells.append(("shared-apf", n, args.shared, platform))
+            if args.centralised and load_policy(args.centralised).contract.num_drones == n:
+                cells.append(("centralised", n, args.centralised, platform))
+            if args.baseline:
+                cells.append(("baseline", n, None, platform))
+    rows = []
+    for controller, n, path, platform in cells:
+        row = evaluate_cell(
+            controller, n, args.trials, args.seed, path, args.num_envs, args.simulator, platform,
+            simulator_options=options,
+        )  # fmt: skip
+        print(_cell_text(row), f"({row.seconds:.0f} s)", flush=True)
+        rows.append(row)
+    command = " ".join(sys.argv[1:] if argv is None else argv)
+    note = (
+        f"{args.simulator}{' (firmware tracker)' if args.firmware else ''}, Vicon sensing, the paper's random starts, "
+        f"{args.trials} trials per cell, seed {args.seed}, 30 s limit: "
+        f"`python -m marlander_lite.swarm.evaluation {command}`."
+    )
+    print(write_results(rows, args.out, args.stem, note))
+
+
+if __name__ == "__main__":
+    main()

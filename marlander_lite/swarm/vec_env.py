@@ -1,0 +1,211 @@
+"""Parameter sharing in stable-baselines3: every (swarm, drone) pair is one entry of a ``VecEnv``.
+
+PPO never learns that the entries belong together: it sees ``sum_g E_g N_g`` independent
+environments, each with the shared input of :mod:`marlander_lite.swarm.observation` and a 3-number
+action, and fits one actor and one critic to all of them. That is multi-agent PPO with parameter
+sharing (MAPPO's decentralised-critic variant, also called IPPO; Yu et al. 2022, de Witt et al.
+2020), written as a VecEnv so the library's tested PPO does the learning.
+
+Several swarm sizes train at once: the VecEnv holds one batched point-mass simulator per size (a
+*group* of ``E_g`` swarms of ``N_g`` drones), concatenated. Each swarm restarts as soon as its
+episode ends, so the swarm size of an episode is drawn from the fixed mixture of groups.
+
+**Reward per entry.** Drone ``i``'s entry earns ``r_t^i + r^c + K`` (``StepOutcome.agent_rewards``):
+its own eq. 5 term plus the shared eq. 6 collision penalty and eq. 4's final bonus. The paper's team
+reward ``sum_i r_t^i`` would hand every drone the other drones' shaping as well, whose variance
+grows with N and drowns the drone's own credit; the per-drone term keeps the return's scale the
+same for 2 and 16 drones (one critic serves every size), and the shared terms keep what is
+cooperative about the task: a collision costs both drones, and every drone gains when the last one lands.
+
+**Episodes.** A swarm's episode ends for all its drones at once (eq. 4's termination: all landed, a
+crash, a collision, a drone out of the arena, or the time limit). Drones that landed earlier stay
+entries until then; their actions are ignored and they earn only the shared terms.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from types import MappingProxyType
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvStepReturn
+
+from marlander_lite.episodes import LandingEpisodes, StepOutcome
+from marlander_lite.pointmass.envs import build_simulator
+from marlander_lite.pointmass.simulator import PointMassParams
+from marlander_lite.swarm.observation import shared_obs_size, shared_observations
+from marlander_lite.task import ACT_PER_DRONE, OBS_LIMITS, TaskConfig
+
+_NO_INFO = MappingProxyType({})
+
+
+class SharedSwarmVecEnv(VecEnv):
+    """Point-mass swarms of several sizes as one SB3 ``VecEnv`` of drones (see the module doc).
+
+    Args:
+        swarm_sizes: drones per swarm of each group, e.g. ``(2, 4, 8)``.
+        swarms_per_size: swarms simulated in parallel in each group (one number for all, or one per size).
+        neighbours: ``k``, the nearest neighbours each drone senses.
+        task, platform, platform_speed, sensing, dynamics: as :class:`~marlander_lite.pointmass.envs.PointMassVecEnv`
+            (``task`` a dict of :class:`TaskConfig` overrides; ``num_drones`` is set per group).
+        seed: seeds group ``g`` with ``seed + g``.
+        neighbour_radius: sensing range of the neighbour features (m); None: any distance.
+
+    Entries are ordered group by group, then swarm by swarm, then drone by drone. ``infos`` of a
+    finished swarm's drone 0 carry the swarm's episode (``episode``: mean per-drone return and length,
+    ``is_success``, ``landing_error`` mean over landed drones (m), ``landing_time`` of the last drone (s),
+    ``min_separation`` (m), ``num_drones``), so SB3's logs count swarm episodes, not drones; every
+    finished entry carries ``terminal_observation`` and ``TimeLimit.truncated``.
+    """
+
+    def __init__(
+        self,
+        swarm_sizes: Sequence[int] = (2, 4, 8),
+        swarms_per_size: int | Sequence[int] = 32,
+        neighbours: int = 3,
+        task: dict[str, Any] | None = None,
+        platform: Any = "static-floor",
+        platform_speed: float | tuple[float, float] | None = None,
+        sensing: Any = None,
+        dynamics: PointMassParams | dict | None = None,
+        seed: int | None = None,
+        neighbour_radius: float | None = None,
+    ) -> None:
+        sizes = tuple(swarm_sizes)
+        if not sizes or any(isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 1 for n in sizes):
+            raise ValueError(f"swarm_sizes must be a non-empty sequence of integers >= 1, got {swarm_sizes!r}.")
+        counts = (swarms_per_size,) * len(sizes) if isinstance(swarms_per_size, int | np.integer) else swarms_per_size
+        counts = tuple(counts)
+        if len(counts) != len(sizes) or any(not isinstance(c, int | np.integer) or c < 1 for c in counts):
+            raise ValueError(
+                f"swarms_per_size must be an integer >= 1 or one per swarm size {sizes}, got {swarms_per_size!r}."
+            )
+        if isinstance(neighbours, bool) or not isinstance(neighbours, int | np.integer) or neighbours < 1:
+            raise ValueError(f"neighbours must be an integer >= 1, got {neighbours!r}.")
+        self.swarm_sizes, self.swarms_per_size, self.neighbours = sizes, counts, int(neighbours)
+        self.neighbour_radius = neighbour_radius
+        self.groups: list[LandingEpisodes] = []
+        self.pad_offsets: list[np.ndarray] = []
+        for g, (n, e) in enumerate(zip(sizes, counts, strict=True)):
+            options: dict[str, Any] = {"task": dict(task or {}), "sensing": sensing, "platform": platform}
+            if platform_speed is not None:
+                options["platform_speed"] = platform_speed
+            if dynamics is not None:
+                options["dynamics"] = dynamics
+            sim, sensing_config = build_simulator(int(e), num_drones=int(n), **options)
+            self.groups.append(LandingEpisodes(sim, sensing_config, None if seed is None else seed + g))
+            self.pad_offsets.append(sim.motion.pad_offsets)
+        self.task: TaskConfig = self.groups[0].task
+        self.render_mode = None
+        bounds = np.ones(shared_obs_size(self.neighbours, self.task.obs_per_drone), dtype=np.float32) * np.float32(
+            max(OBS_LIMITS) * 2
+        )
+        self._slices = np.cumsum([0] + [n * e for n, e in zip(sizes, counts, strict=True)])
+        self._actions: np.ndarray | None = None
+        self._elapsed = 0.0
+        super().__init__(
+            int(self._slices[-1]),
+            spaces.Box(-bounds, bounds, dtype=np.float32),
+            spaces.Box(-1.0, 1.0, shape=(ACT_PER_DRONE,), dtype=np.float32),
+        )
+
+    # ------------------------------------------------------------------ helpers
+    def _inputs(self, g: int, obs: np.ndarray) -> np.ndarray:
+        """``(E_g, N_g, 13)`` observations -> ``(E_g N_g, 13 + 7 k)`` float32 entries."""
+        shared = shared_observations(obs, self.pad_offsets[g], self.neighbours, self.neighbour_radius)
+        return shared.reshape(-1, shared.shape[-1]).astype(np.float32)
+
+    def group_of(self, entry: int) -> tuple[int, int, int]:
+        """``(group, swarm, drone)`` of entry ``entry``."""
+        g = int(np.searchsorted(self._slices, entry, side="right") - 1)
+        swarm, drone = divmod(entry - int(self._slices[g]), int(self.swarm_sizes[g]))
+        return g, swarm, drone
+
+    # ------------------------------------------------------------------ VecEnv API
+    def reset(self) -> np.ndarray:
+        if self._seeds[0] is not None:
+            for g, episodes in enumerate(self.groups):
+                episodes.seed(self._seeds[0] + g)
+        self._reset_seeds()
+        self._reset_options()
+        return np.concatenate([self._inputs(g, ep.reset()) for g, ep in enumerate(self.groups)])
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self._actions = np.asarray(actions)
+
+    def step_wait(self) -> VecEnvStepReturn:
+        if self._actions is None:
+            raise RuntimeError("step_wait() called without step_async().")
+        actions, self._actions = self._actions, None
+        if actions.shape != (self.num_envs, ACT_PER_DRONE):
+            raise ValueError(f"Actions have shape {actions.shape}; expected ({self.num_envs}, {ACT_PER_DRONE}).")
+        self._elapsed += self.task.dt
+        obs, rewards, dones = [], [], []
+        infos: list[Any] = [_NO_INFO] * self.num_envs
+        for g, episodes in enumerate(self.groups):
+            n, e = self.swarm_sizes[g], self.swarms_per_size[g]
+            lo, hi = int(self._slices[g]), int(self._slices[g + 1])
+            outcome = episodes.step(actions[lo:hi].reshape(e, n, ACT_PER_DRONE))
+            group_obs = self._inputs(g, outcome.obs)
+            done = outcome.done
+            if done.any():
+                ids = np.flatnonzero(done)
+                self._finish(infos, lo, n, ids, outcome, group_obs)
+                fresh = self._inputs(g, episodes.reset(ids)).reshape(len(ids), n, -1)
+                group_obs = group_obs.reshape(e, n, -1)
+                group_obs[ids] = fresh
+                group_obs = group_obs.reshape(e * n, -1)
+            obs.append(group_obs)
+            rewards.append(outcome.agent_rewards.reshape(-1))
+            dones.append(np.repeat(done, n))
+        return np.concatenate(obs), np.concatenate(rewards).astype(np.float32), np.concatenate(dones), infos
+
+    def _finish(
+        self, infos: list[Any], lo: int, n: int, ids: np.ndarray, outcome: StepOutcome, entries: np.ndarray
+    ) -> None:
+        """Fill the infos of the drones of the swarms ``ids`` whose episodes just ended."""
+        for swarm in ids.tolist():
+            landed = outcome.landed[swarm]
+            errors = outcome.landing_error[swarm][landed]
+            base = lo + swarm * n
+            for drone in range(n):
+                infos[base + drone] = {
+                    "terminal_observation": entries[swarm * n + drone].copy(),
+                    "TimeLimit.truncated": bool(outcome.truncated[swarm]),
+                }
+            infos[base].update(
+                is_success=bool(outcome.success[swarm]),
+                landing_error=float(errors.mean()) if errors.size else float("nan"),
+                landing_time=float(outcome.landing_time[swarm].max()) if landed.all() else float("nan"),
+                min_separation=float(outcome.min_separation[swarm]),
+                num_drones=n,
+                episode={
+                    "r": float(outcome.episode_return[swarm]) / n,
+                    "l": int(outcome.episode_length[swarm]),
+                    "t": self._elapsed,
+                },
+            )
+
+    def close(self) -> None:
+        for episodes in self.groups:
+            episodes.sim.close()
+
+    def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
+        return [getattr(self, attr_name) for _ in self._get_indices(indices)]
+
+    def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
+        setattr(self, attr_name, value)
+
+    def env_method(
+        self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **method_kwargs: Any
+    ) -> list[Any]:
+        method = getattr(self, method_name)
+        return [method(*method_args, **method_kwargs) for _ in self._get_indices(indices)]
+
+    def env_is_wrapped(self, wrapper_class: type, indices: VecEnvIndices = None) -> list[bool]:
+        return [False for _ in self._get_indices(indices)]
+
+    def get_images(self) -> Sequence[np.ndarray | None]:
+        return [None for _ in range(self.num_envs)]
