@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 from typing import Literal, get_args
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 PlatformKind = Literal["static-floor", "static-elevated", "moving-linear", "moving-arc"]
 PLATFORM_KINDS: tuple[str, ...] = get_args(PlatformKind)
@@ -148,16 +149,16 @@ class PlateGeometry:
         return side_x / 2, side_y / 2
 
     def rotation(self) -> np.ndarray:
-        """``(3, 3)`` rotation from the plate frame to the world frame (Rodrigues about the tilt axis).
+        """``(3, 3)`` rotation from the plate frame to the world frame: ``inclination_deg`` about the horizontal
+        axis at ``tilt_axis_deg`` from world x.
 
         The identity for a level plate. Column 2 is the plate's (and every pad's) normal.
         """
         if self.inclination_deg == 0:
             return np.eye(3)
         theta, psi = math.radians(self.inclination_deg), math.radians(self.tilt_axis_deg)
-        k = np.array([math.cos(psi), math.sin(psi), 0.0])
-        cross = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-        return np.eye(3) + math.sin(theta) * cross + (1 - math.cos(theta)) * cross @ cross
+        axis = np.array([math.cos(psi), math.sin(psi), 0.0])
+        return Rotation.from_rotvec(theta * axis).as_matrix()
 
     def normal(self) -> np.ndarray:
         """Unit normal of the plate's top face (and of every pad), world frame, ``(3,)``; ``+z`` when level."""

@@ -148,6 +148,14 @@ class PolicyContract:
                 "num_drones is null but neighbours is not set: neither a centralised nor a shared policy"
             )
 
+    def require_centralised(self, where: str) -> None:
+        """Raise :class:`PolicyFileError` if this is a shared (N-free) policy, which ``where`` cannot fly."""
+        if self.is_shared:
+            raise PolicyFileError(
+                f"{where} flies centralised policies; this is a shared policy for any swarm size "
+                f"({self.neighbours} neighbours): evaluate it with 'python -m marlander_lite.swarm.evaluation'."
+            )
+
     def check_compatible(self, task: TaskConfig, *, per_drone: bool = False, shared: bool = False) -> None:
         """Raise :class:`PolicyFileError` if this policy cannot drive ``task``.
 

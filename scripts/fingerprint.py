@@ -76,6 +76,7 @@ def main() -> int:
         "pointmass family+noisy": rollout(
             "pointmass", 300, 16, sensing="noisy", dynamics=family, task={"training_touchdown_speed": 0.3}
         ),
+        "pointmass robust sensing": rollout("pointmass", 300, 16, sensing="robust", dynamics=family),
         "pointmass moving-arc": rollout("pointmass", 300, 8, platform="moving-arc", platform_speed=0.5),
         "pointmass 5 drones": rollout("pointmass", 200, 8, num_drones=5),
         "crazyflie pid": rollout("crazyflie", 60, 2),

@@ -41,6 +41,7 @@ EXPECTED_TEXT = {
     "06_baselines.ipynb": ["budget: small"],
     "07_deployment_rehearsal.ipynb": ["budget: small", "fault none: armed=True, on pad=[True, True]"],
     "08_transfer.ipynb": ["budget: small", "### quick-cpu", "| floor | "],
+    "09_scaling.ipynb": ["budget: small", "| shared | static-floor | 16 |"],
 }
 
 

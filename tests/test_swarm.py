@@ -3,10 +3,8 @@ permutation symmetry, evaluation vs N, a small learning run, and notebook 09."""
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
-import nbformat
 import numpy as np
 import pytest
 from stable_baselines3.common.vec_env import VecCheckNan
@@ -309,9 +307,9 @@ def test_evaluation_vs_n_counts_trials_and_intervals(lander_file):
 
 @pytest.mark.slow
 def test_a_small_budget_learns_to_land_three_drones(tmp_path):
-    """500 k drone steps on 64 swarms of 3 (about 25 s of CPU on one core): from starts near the pads, with exact
-    sensing and the nominal point mass, the shared policy lands all three drones in at least 30 % of 60 trials
-    (measured: 53 %, seed 0; an untrained policy lands none). Judged with every training aid off."""
+    """500 k drone steps on 64 swarms of 3 (15 s on a free core, 3.5 min with both cores busy). From starts near the
+    pads, with exact sensing and the nominal point mass, the shared policy lands all three drones in at least 30 %
+    of 60 trials (53 % when we ran it, seed 0), judged with every training aid off."""
     from marlander_lite.swarm.train import train_shared
 
     near_pads = {"spawn_near_pad_fraction": 1.0, "spawn_separation": 0.2}
@@ -324,25 +322,8 @@ def test_a_small_budget_learns_to_land_three_drones(tmp_path):
     assert row.summary.success_rate >= 0.3, row.summary
 
 
-# ---------------------------------------------------------------------------- notebook 09
+def test_centralised_tools_refuse_a_shared_policy_and_say_where_to_go(lander_file):
+    from marlander_lite.training.evaluation import evaluate_policy_file
 
-
-def test_notebook_09_is_committed_without_outputs():
-    nb = nbformat.read(ROOT / "notebooks" / "09_scaling.ipynb", as_version=4)
-    code = [c for c in nb.cells if c.cell_type == "code"]
-    assert code and all(not c.outputs and c.execution_count is None for c in code)
-
-
-@pytest.mark.slow
-@pytest.mark.notebooks
-def test_notebook_09_runs_with_the_small_budget(monkeypatch):
-    from nbclient import NotebookClient
-
-    monkeypatch.setenv("MARLANDER_BUDGET", "small")
-    nb = nbformat.read(ROOT / "notebooks" / "09_scaling.ipynb", as_version=4)
-    client = NotebookClient(
-        nb, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(ROOT / "notebooks")}}
-    )
-    client.execute(env=dict(os.environ))
-    text = "".join(o.get("text", "") for c in nb.cells if c.cell_type == "code" for o in c.outputs)
-    assert "budget: small" in text and "| shared | static-floor | 16 |" in text
+    with pytest.raises(PolicyFileError, match="marlander_lite.swarm.evaluation"):
+        evaluate_policy_file(lander_file, episodes=1)

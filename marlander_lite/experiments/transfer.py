@@ -257,7 +257,7 @@ class TransferConfig:
 
 def transfer_matrix(config: TransferConfig) -> list[CellResult]:
     """Fly every cell of ``config`` and return the results, rows outer, columns inner, in the given order."""
-    load_policy(config.policy)  # a bad file fails here, before any worker starts
+    load_policy(config.policy).contract.require_centralised("marlander transfer")  # fails before any worker starts
     cells = [(c, r) for r in config.rows for c in config.columns]
     args = [(str(config.policy), c, r, config.episodes, config.seed, config.sensing) for c, r in cells]
     if config.workers == 1:

@@ -93,7 +93,7 @@ SHARED_PRESETS: dict[str, SharedTrainConfig] = {
         torch_threads=1,
         # Small swarms: one crash ends a swarm's episode for every drone in it, so in swarms of 6 or 8 most drones
         # are cut off before they reach their pad (episodes of 35 steps); with k = 3 neighbours a swarm of 4 already
-        # fills every neighbour slot. 2-8 drones never learnt to touch down in 16 M steps (data/runs/shared-quick-*).
+        # fills every neighbour slot. 2-8 drones never learnt to touch down (data/runs/shared-quick-bigbatch, -2to8).
         swarm_sizes=(1, 2, 3, 4),
         drones_per_size=160,
         # PPO moves the policy a bounded step per rollout: ~640 drones x 32 steps keeps quick-cpu's ~20 k samples per

@@ -98,6 +98,7 @@ def evaluate_policy_file(
     (``platform``, ``sensing``, ``task`` overrides...).
     """
     policy = load_policy(path)
+    policy.contract.require_centralised("evaluate_policy_file")
     task = {**policy.contract.task, **TRAINING_AIDS_OFF, **env_options.pop("task", {})}
     infos = run_episodes(policy, simulator, episodes, seed, task=task, **env_options)
     return summarise(infos, TaskConfig().replace(**task).collision_distance)

@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from marlander_lite.distributed import Backend, map_jobs
+from marlander_lite.policy_file import read_contract
 from marlander_lite.training.provenance import policy_digest
 from marlander_lite.training.sweep import SeedJob, SeedOutcome, train_seed
 
@@ -61,6 +62,9 @@ def shipped_artifacts(data: str | Path = "data") -> list[ShippedArtifact]:
         preset, config, problem = None, None, None
         if not (run / "config.json").is_file():
             run, problem = None, f"no run folder data/runs/{name} with its config.json"
+        elif read_contract(policy).is_shared:
+            preset = json.loads((run / "config.json").read_text()).get("preset")
+            problem = "a shared (any-N) policy: retrain it with python -m marlander_lite.swarm.train"
         else:
             record = json.loads((run / "config.json").read_text())
             preset, config = record.get("preset"), dict(record["train"])
