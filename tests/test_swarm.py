@@ -325,5 +325,5 @@ def test_a_small_budget_learns_to_land_three_drones(tmp_path):
 def test_centralised_tools_refuse_a_shared_policy_and_say_where_to_go(lander_file):
     from marlander_lite.training.evaluation import evaluate_policy_file
 
-    with pytest.raises(PolicyFileError, match="marlander_lite.swarm.evaluation"):
+    with pytest.raises(PolicyFileError, match=r"marlander_lite\.swarm\.evaluation"):
         evaluate_policy_file(lander_file, episodes=1)
