@@ -16,7 +16,34 @@ from marlander_lite.sensing import SensingConfig
 _NO_INFO = MappingProxyType({})
 
 
-class LandingVecEnv(VecEnv):
+class InProcessVecEnv(VecEnv):
+    """The SB3 ``VecEnv`` methods of an env whose swarms all live in this process as one object.
+
+    Attribute and method calls go to that one object, once per requested index; no sub-env is ever
+    wrapped and none renders. Both the centralised :class:`LandingVecEnv` and the shared-policy
+    ``swarm.vec_env.SharedSwarmVecEnv`` build on it.
+    """
+
+    def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
+        return [getattr(self, attr_name) for _ in self._get_indices(indices)]
+
+    def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
+        setattr(self, attr_name, value)
+
+    def env_method(
+        self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **method_kwargs: Any
+    ) -> list[Any]:
+        method = getattr(self, method_name)
+        return [method(*method_args, **method_kwargs) for _ in self._get_indices(indices)]
+
+    def env_is_wrapped(self, wrapper_class: type, indices: VecEnvIndices = None) -> list[bool]:
+        return [False for _ in self._get_indices(indices)]
+
+    def get_images(self) -> Sequence[np.ndarray | None]:
+        return [None for _ in range(self.num_envs)]
+
+
+class LandingVecEnv(InProcessVecEnv):
     """SB3 ``VecEnv`` over a :class:`~marlander_lite.episodes.Simulator` holding ``num_envs`` swarms.
 
     One :class:`~marlander_lite.episodes.LandingEpisodes` evaluates every env at once, so the
@@ -100,21 +127,3 @@ class LandingVecEnv(VecEnv):
 
     def close(self) -> None:
         self.simulator.close()
-
-    def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
-        return [getattr(self, attr_name) for _ in self._get_indices(indices)]
-
-    def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
-        setattr(self, attr_name, value)
-
-    def env_method(
-        self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **method_kwargs: Any
-    ) -> list[Any]:
-        method = getattr(self, method_name)
-        return [method(*method_args, **method_kwargs) for _ in self._get_indices(indices)]
-
-    def env_is_wrapped(self, wrapper_class: type, indices: VecEnvIndices = None) -> list[bool]:
-        return [False for _ in self._get_indices(indices)]
-
-    def get_images(self) -> Sequence[np.ndarray | None]:
-        return [None for _ in range(self.num_envs)]

@@ -30,8 +30,9 @@ from typing import Any
 
 import numpy as np
 from gymnasium import spaces
-from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvStepReturn
+from stable_baselines3.common.vec_env.base_vec_env import VecEnvStepReturn
 
+from marlander_lite.envs.vec_env import InProcessVecEnv
 from marlander_lite.episodes import LandingEpisodes, StepOutcome
 from marlander_lite.pointmass.envs import build_simulator
 from marlander_lite.pointmass.simulator import PointMassParams
@@ -41,7 +42,7 @@ from marlander_lite.task import ACT_PER_DRONE, OBS_LIMITS, TaskConfig
 _NO_INFO = MappingProxyType({})
 
 
-class SharedSwarmVecEnv(VecEnv):
+class SharedSwarmVecEnv(InProcessVecEnv):
     """Point-mass swarms of several sizes as one SB3 ``VecEnv`` of drones (see the module doc).
 
     Args:
@@ -191,21 +192,3 @@ class SharedSwarmVecEnv(VecEnv):
     def close(self) -> None:
         for episodes in self.groups:
             episodes.sim.close()
-
-    def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
-        return [getattr(self, attr_name) for _ in self._get_indices(indices)]
-
-    def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
-        setattr(self, attr_name, value)
-
-    def env_method(
-        self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **method_kwargs: Any
-    ) -> list[Any]:
-        method = getattr(self, method_name)
-        return [method(*method_args, **method_kwargs) for _ in self._get_indices(indices)]
-
-    def env_is_wrapped(self, wrapper_class: type, indices: VecEnvIndices = None) -> list[bool]:
-        return [False for _ in self._get_indices(indices)]
-
-    def get_images(self) -> Sequence[np.ndarray | None]:
-        return [None for _ in range(self.num_envs)]
