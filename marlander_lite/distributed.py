@@ -85,7 +85,7 @@ def connect_ray(address: str | None, num_cpus: int | None = None) -> None:
     """Start or join a Ray cluster; an address nobody answers at fails within seconds.
 
     ``ray.init`` itself keeps retrying an unreachable head for a long time, so a ``HOST:PORT`` is
-    first probed with a plain TCP connection (:data:`CONNECT_TIMEOUT_S`).
+    first probed with a plain TCP connection (:data:`CONNECT_TIMEOUT_S`), even when Ray is already running here.
     """
     try:
         import ray
@@ -93,8 +93,6 @@ def connect_ray(address: str | None, num_cpus: int | None = None) -> None:
         raise ValueError(
             "--backend ray needs Ray: pip install 'marlander_lite[ray]' (environment.lock pins it)."
         ) from None
-    if ray.is_initialized():
-        return
     if address not in (None, "auto"):
         host, _, port = address.rpartition(":")
         if not host or not port.isdigit():
@@ -106,6 +104,8 @@ def connect_ray(address: str | None, num_cpus: int | None = None) -> None:
                 f"--address {address}: no Ray head answers there ({error}). Start one with "
                 f"'ray start --head --port {port}' on {host}, or check the address."
             ) from None
+    if ray.is_initialized():  # e.g. a notebook or test that started Ray itself: use that instance
+        return
     try:
         if address is None:
             ray.init(num_cpus=num_cpus, include_dashboard=False, log_to_driver=False)
