@@ -323,17 +323,28 @@ def test_shipped_artifacts_are_retrained_and_compared(tmp_path: Path) -> None:
         (data / "policies" / "tiny.safetensors").read_bytes()
     )
 
-    assert [a.name for a in shipped_artifacts(data)] == ["edited", "edited-finetune", "tiny"]
+    # The same weights in a file whose description changed (as when the contract format gains a field).
+    from safetensors import safe_open
+    from safetensors.numpy import load_file, save_file
+
+    _ship(data, "relabelled", tmp_path / "tiny")
+    relabelled = data / "policies" / "relabelled.safetensors"
+    with safe_open(str(relabelled), framework="numpy") as handle:
+        metadata = {**handle.metadata(), "note": "shipped before the format gained this entry"}
+    save_file(load_file(relabelled), relabelled, metadata=metadata)
+
+    assert [a.name for a in shipped_artifacts(data)] == ["edited", "edited-finetune", "relabelled", "tiny"]
     write_manifest(data, shipped_in=lambda _: None)
     assert check_manifest(data) == []
     results = {
         r["name"]: r for r in check_shipped([], tmp_path / "check", data=data, episodes=20, report=lambda _: None)
     }
     assert results["tiny"]["status"] == "identical"
+    assert results["relabelled"]["status"] == "identical weights" and "note" in results["relabelled"]["why"]
     assert results["edited"]["status"] in ("differs", "equivalent") and results["edited"]["max_weight_difference"] > 0
     assert results["edited-finetune"]["status"] == "not retrainable"
     assert "runs/stage-1" in results["edited-finetune"]["why"]
-    assert json.loads((tmp_path / "check" / "report.json").read_text())[2]["status"] == "identical"
+    assert json.loads((tmp_path / "check" / "report.json").read_text())[3]["status"] == "identical"
 
     (data / "policies" / "tiny.safetensors").write_bytes((data / "policies" / "edited.safetensors").read_bytes())
     assert check_manifest(data) == ["tiny"]  # a shipped file changed after the manifest was written

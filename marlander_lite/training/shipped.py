@@ -9,6 +9,8 @@ since provenance was recorded also name the commit that trained them in their ``
 :func:`check_shipped` retrains artifacts (as sweep jobs: processes here or Ray tasks) and says, for each,
 
 - ``identical``: today's code makes a policy with the same digest (bit-identical weights);
+- ``identical weights``: bit-identical weights and normaliser, but the file's description differs (for example a
+  contract field added to the format since it was shipped);
 - ``equivalent``: different weights (e.g. another CPU's floating point) but the same behaviour within
   :data:`TOLERANCE` on the same evaluation episodes;
 - ``differs``: today's code no longer reproduces it;
@@ -25,6 +27,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from marlander_lite.distributed import Backend, map_jobs
 from marlander_lite.policy_file import read_contract
@@ -195,6 +199,10 @@ def compare(artifact: ShippedArtifact, retrained: Path, episodes: int = 200) -> 
     ):
         return {**result, "status": "differs", "why": "the networks have different shapes"}
     result["max_weight_difference"] = max(float(abs(old_tensors[k] - new_tensors[k]).max()) for k in old_tensors)
+    if all(np.array_equal(old_tensors[k], new_tensors[k]) for k in old_tensors):
+        # Same weights; only the file's description differs (e.g. a contract field added since it was shipped).
+        changed = _metadata_differences(artifact.policy, retrained)
+        return {**result, "status": "identical weights", "why": f"metadata differs in {', '.join(changed)}"}
     simulator = (artifact.config or {}).get("simulator", "pointmass")
     count = episodes if simulator == "pointmass" else max(20, episodes // 4)
     summaries = {}
@@ -203,6 +211,21 @@ def compare(artifact: ShippedArtifact, retrained: Path, episodes: int = 200) -> 
     result["evaluation"] = summaries
     within = all(abs(summaries["shipped"][k] - summaries["retrained"][k]) <= tol for k, tol in TOLERANCE.items())
     return {**result, "status": "equivalent" if within else "differs"}
+
+
+def _metadata_differences(a: Path, b: Path) -> list[str]:
+    """Keys of the two policy files' metadata (and of their JSON contracts) whose values differ."""
+    from safetensors import safe_open
+
+    def flat(path: Path) -> dict[str, Any]:
+        with safe_open(str(path), framework="numpy") as handle:
+            metadata = dict(handle.metadata() or {})
+        contract = json.loads(metadata.pop("contract", "{}"))
+        return {**metadata, **{f"contract.{k}": v for k, v in contract.items()}}
+
+    old, new = flat(a), flat(b)
+    differ = sorted(k for k in old.keys() | new.keys() if k not in old or k not in new or old[k] != new[k])
+    return differ or ["the order of its entries only"]
 
 
 def markdown_report(results: Sequence[dict[str, Any]]) -> str:
