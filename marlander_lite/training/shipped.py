@@ -33,7 +33,7 @@ import numpy as np
 from marlander_lite.distributed import Backend, map_jobs
 from marlander_lite.policy_file import read_contract
 from marlander_lite.training.provenance import policy_digest
-from marlander_lite.training.sweep import SeedJob, SeedOutcome, train_seed
+from marlander_lite.training.sweep import SeedJob, SeedOutcome, receive_run, run_state, train_seed
 
 MANIFEST = "shipped.json"
 TOLERANCE = {"success_rate": 0.05, "landing_error_mean_cm": 0.5}
@@ -145,8 +145,6 @@ def check_shipped(
 
     A retrained run already finished in ``out`` is compared without training it again.
     """
-    from marlander_lite.training.sweep import _run_state
-
     out = Path(out)
     chosen = [a for a in shipped_artifacts(data) if not names or a.name in names]
     unknown = sorted(set(names) - {a.name for a in chosen})
@@ -159,16 +157,14 @@ def check_shipped(
         folder = out / artifact.name
         if artifact.problem is not None:
             results[artifact.name] = {"name": artifact.name, "status": "not retrainable", "why": artifact.problem}
-        elif _run_state(folder) != "done":
+        elif run_state(folder) != "done":
             if folder.exists():
                 raise FileExistsError(f"{folder} holds an unfinished run; remove it or choose another --out.")
             assert artifact.config is not None
             jobs.append(SeedJob(artifact.config, artifact.preset, str(folder), resume=False))
     for job, outcome in map_jobs(train_seed, jobs, backend=backend, workers=workers, address=address):
         if isinstance(outcome, SeedOutcome) and outcome.packed_run is not None:
-            from marlander_lite.training.sweep import _receive
-
-            _receive(outcome.packed_run, Path(job.folder))
+            receive_run(outcome.packed_run, Path(job.folder))
         report(f"{Path(job.folder).name}: trained ({getattr(outcome, 'status', outcome)})")
     for artifact in chosen:
         if artifact.name not in results:

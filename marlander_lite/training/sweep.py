@@ -130,7 +130,7 @@ def _write_json(path: Path, record: dict[str, Any]) -> None:
     partial.replace(path)
 
 
-def _run_state(folder: Path) -> str:
+def run_state(folder: Path) -> str:
     """``new``, ``done``, ``resumable`` or ``broken`` (a folder neither finished nor resumable)."""
     from marlander_lite.training.resume import RESUME_DIR, has_checkpoint
 
@@ -204,7 +204,7 @@ def run_sweep(
     outcomes, jobs = [], []
     for seed in seeds:
         folder = seed_folder(out, seed)
-        state = _run_state(folder)
+        state = run_state(folder)
         if state == "done":
             report(f"seed {seed}: already trained ({folder})")
             outcomes.append(SeedOutcome(seed, "done", "already trained"))
@@ -227,7 +227,7 @@ def run_sweep(
         seed = int(job.config["seed"])
         outcome = result if isinstance(result, SeedOutcome) else SeedOutcome(seed, "failed", repr(result))
         if outcome.packed_run is not None:
-            _receive(outcome.packed_run, Path(job.folder))
+            receive_run(outcome.packed_run, Path(job.folder))
         entry: dict[str, Any] = {"status": outcome.status, "seconds": outcome.seconds}
         if outcome.message:
             entry["message"] = outcome.message
@@ -254,11 +254,11 @@ def sweep_runs(folder: str | Path) -> list[Path] | None:
 
 def finished_seeds(folder: Path) -> list[Path]:
     """The run folders of the seeds that finished training, by seed."""
-    runs = [p for p in folder.glob("seed-*") if re.fullmatch(r"seed-\d+", p.name) and _run_state(p) == "done"]
+    runs = [p for p in folder.glob("seed-*") if re.fullmatch(r"seed-\d+", p.name) and run_state(p) == "done"]
     return sorted(runs, key=lambda p: int(p.name.split("-")[1]))
 
 
-def _receive(packed: bytes, folder: Path) -> None:
+def receive_run(packed: bytes, folder: Path) -> None:
     """Unpack a run that came back from a Ray worker into ``folder``, replacing only our own earlier copy."""
     incoming = folder.with_name(folder.name + ".incoming")
     _unpack(packed, incoming)
