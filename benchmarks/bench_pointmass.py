@@ -1,15 +1,16 @@
-"""Point-mass swarm throughput: drone-steps per second of the batched SB3 VecEnv.
+"""Point-mass swarm throughput: drone-steps per second of the batched SB3 VecEnv, numpy vs numba engine.
 
-For num_envs in {1, 256, 4096} and num_drones in {2, 8} it times ``PointMassVecEnv.step`` with
-random actions (so episodes end and auto-reset as in training) and compares it with a bare numpy
-loop doing only the integration (first-order lag, acceleration cap, position update) on arrays
-of the same size. Target: at least 5 million drone-steps/s with 4096 envs x 2 drones on 2 cores.
+For 4096 envs x 2 drones and 1024 envs x 16 drones it times ``PointMassVecEnv.step`` with random
+actions (so episodes end and auto-reset as in training) on both engines of
+:mod:`marlander_lite.pointmass.kernels`: ``numpy`` (the reference: simulator and ``task.min_separation``
+in plain numpy) and ``numba`` (the compiled kernels, the same results bit for bit). Target (issue 13):
+at least 5 million drone-steps/s at both sizes.
 
-Each figure is the median of ``--repeats`` timed runs measured in this one process; the machine
-may be shared, so compare numbers from one run with each other, not across runs.
-
-Observations come back as a row-major ``(num_envs, 13 N)`` float32 array (the simulator computes in Fortran
-order internally and converts once); the ``+C copy`` column adds ``np.ascontiguousarray``, which is now free.
+Each figure is the median of ``--repeats`` timed runs, the engines taking turns within this one process,
+so that a background load hits both alike. Two clocks: wall time (``perf_counter``), what training sees,
+and CPU time of this process (``process_time``), far less sensitive to other processes on a shared machine.
+The ratio column is numba over numpy, measured in this run. The first line reports what the first numba
+step costs in this process: the compile on a machine's first run, loading numba's disk cache afterwards.
 
     python benchmarks/bench_pointmass.py [--repeats 5] [--steps-scale 1.0]
 """
@@ -17,48 +18,47 @@ order internally and converts once); the ``+C copy`` column adds ``np.ascontiguo
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import time
 
 import numpy as np
 
 import marlander_lite
+from marlander_lite.pointmass import kernels
+
+SIZES = ((4096, 2), (1024, 16))
 
 
-def time_env(num_envs: int, num_drones: int, steps: int, contiguous: bool, hover: bool = False) -> tuple[float, float]:
-    """Seconds per ``VecEnv.step`` and episodes ended per step; ``hover`` sends zero velocities (no resets)."""
-    env = marlander_lite.make_vec_env("pointmass", num_envs=num_envs, num_drones=num_drones, seed=0)
+def make_env(num_envs: int, num_drones: int, engine: str):
+    # min_separation (called by the MDP, not the simulator) follows the environment variable.
+    os.environ[kernels.ENGINE_VARIABLE] = engine
+    env = marlander_lite.make_vec_env("pointmass", num_envs=num_envs, num_drones=num_drones, seed=0, engine=engine)
     env.reset()
+    return env
+
+
+def time_env(num_envs: int, num_drones: int, steps: int, engine: str) -> tuple[float, float, float]:
+    """Wall and CPU seconds per ``VecEnv.step`` and episodes ended per step."""
+    env = make_env(num_envs, num_drones, engine)
     actions = np.random.default_rng(0).uniform(-1, 1, (16, num_envs, 3 * num_drones)).astype(np.float32)
-    if hover:
-        actions[:] = 0.0
     for i in range(5):
         env.step(actions[i])
     ended = 0
-    start = time.perf_counter()
+    wall, cpu = time.perf_counter(), time.process_time()
     for i in range(steps):
-        obs, _, done, _ = env.step(actions[i % 16])
-        if contiguous:
-            obs = np.ascontiguousarray(obs)
+        _, _, done, _ = env.step(actions[i % 16])
         ended += int(done.sum())
-    seconds = time.perf_counter() - start
-    return seconds / steps, ended / steps
+    wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+    return wall / steps, cpu / steps, ended / steps
 
 
-def time_bare_integration(num_envs: int, num_drones: int, steps: int) -> float:
-    """Only the point-mass update, on preallocated arrays: the floor any batched env sits on."""
-    vel = np.zeros((num_envs, num_drones, 3), order="F")
-    pos = np.zeros_like(vel)
-    cmd = np.asfortranarray(np.random.default_rng(0).uniform(-3, 3, vel.shape))
-    blend, max_dv, dt = 0.56, 4.07 / 24, 1 / 24
+def first_step_seconds() -> float:
+    """Seconds of the first reset + step with numba in this process (compile, or cache load)."""
     start = time.perf_counter()
-    for _ in range(steps):
-        dv = (cmd - vel) * blend
-        norm = np.sqrt(dv[..., 0] ** 2 + dv[..., 1] ** 2 + dv[..., 2] ** 2)
-        dv *= np.minimum(1.0, max_dv / np.maximum(norm, 1e-12))[..., None]
-        pos += (vel + 0.5 * dv) * dt
-        vel += dv
-    return (time.perf_counter() - start) / steps
+    for num_envs, num_drones in SIZES:
+        make_env(num_envs, num_drones, "numba").step(np.zeros((num_envs, 3 * num_drones), np.float32))
+    return time.perf_counter() - start
 
 
 def main() -> None:
@@ -66,33 +66,36 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--steps-scale", type=float, default=1.0, help="scale the number of timed steps")
     args = parser.parse_args()
-    print(f"marlander_lite {marlander_lite.__version__}, numpy {np.__version__}; medians of {args.repeats} runs")
-    header = (
-        f"{'envs':>5} {'drones':>6} {'step ms':>8} {'M drone-steps/s':>16} {'+C copy':>8} "
-        f"{'bare ms':>8} {'env/bare':>8} {'resets/step':>11} {'hover M/s':>9}"
+    engines = ["numpy", "numba"] if kernels.numba_available() else ["numpy"]
+    print(
+        f"marlander_lite {marlander_lite.__version__}, numpy {np.__version__}, numba "
+        f"{kernels.numba.__version__ if kernels.numba else 'not installed'}; medians of {args.repeats} runs"
     )
-    print(header)
-    for num_envs in (1, 256, 4096):
-        for num_drones in (2, 8):
-            steps = max(30, int(args.steps_scale * 40_000 / num_envs))
-            env_runs = [time_env(num_envs, num_drones, steps, False) for _ in range(args.repeats)]
-            copy_runs = [time_env(num_envs, num_drones, steps, True)[0] for _ in range(args.repeats)]
-            bare_runs = [time_bare_integration(num_envs, num_drones, steps) for _ in range(args.repeats)]
-            hover_runs = [time_env(num_envs, num_drones, steps, False, hover=True)[0] for _ in range(args.repeats)]
-            step = statistics.median(r[0] for r in env_runs)
-            resets = statistics.median(r[1] for r in env_runs)
-            with_copy = statistics.median(copy_runs)
-            bare = statistics.median(bare_runs)
-            rate = num_envs * num_drones / step / 1e6
-            copy_rate = num_envs * num_drones / with_copy / 1e6
-            hover_rate = num_envs * num_drones / statistics.median(hover_runs) / 1e6
+    if kernels.numba_available():
+        print(f"first numba reset + step in this process (compile or cache load): {first_step_seconds():.2f} s")
+    print(
+        f"{'envs':>5} {'drones':>6} {'engine':>6} {'wall ms':>8} {'wall M/s':>9} {'CPU ms':>7} {'CPU M/s':>8} "
+        f"{'resets/step':>11}"
+    )
+    for num_envs, num_drones in SIZES:
+        steps = max(30, int(args.steps_scale * 100_000 / num_envs))
+        runs: dict[str, list[tuple[float, float, float]]] = {engine: [] for engine in engines}
+        for _ in range(args.repeats):
+            for engine in engines:
+                runs[engine].append(time_env(num_envs, num_drones, steps, engine))
+        rates = {}
+        for engine in engines:
+            wall, cpu, resets = (statistics.median(r[i] for r in runs[engine]) for i in range(3))
+            drone_steps = num_envs * num_drones
+            rates[engine] = (drone_steps / wall / 1e6, drone_steps / cpu / 1e6)
             print(
-                f"{num_envs:>5} {num_drones:>6} {1e3 * step:>8.3f} {rate:>16.2f} "
-                f"{copy_rate:>8.2f} {1e3 * bare:>8.3f} {step / bare:>8.1f} {resets:>11.1f} {hover_rate:>9.2f}"
+                f"{num_envs:>5} {num_drones:>6} {engine:>6} {1e3 * wall:>8.3f} {rates[engine][0]:>9.2f} "
+                f"{1e3 * cpu:>7.3f} {rates[engine][1]:>8.2f} {resets:>11.1f}"
             )
-    print("Random actions in [-1, 1] crash drones often, so episodes end and reset every step (resets/step);")
-    print("'hover M/s' sends zero velocities: no episode ends before the time limit, the simulator's own cost.")
-    print("Target: >= 5 M drone-steps/s at 4096 envs x 2 drones.")
+        if len(engines) == 2:
+            wall_ratio, cpu_ratio = (rates["numba"][i] / rates["numpy"][i] for i in range(2))
+            print(f"{'':>13}numba / numpy: {wall_ratio:.2f}x wall, {cpu_ratio:.2f}x CPU")
+    print("M/s: million drone-steps per second (envs x drones / step time). Target: >= 5 at both sizes.")
 
 
 if __name__ == "__main__":

@@ -10,6 +10,7 @@ from marlander_lite.envs.gym_env import SwarmLandingEnv
 from marlander_lite.envs.options import EnvOptions, config_from_mapping
 from marlander_lite.envs.parallel_env import SwarmParallelEnv
 from marlander_lite.envs.vec_env import LandingVecEnv
+from marlander_lite.pointmass.kernels import Engine, resolve_engine
 from marlander_lite.pointmass.simulator import PointMassParams, PointMassSwarm
 from marlander_lite.sensing import SensingConfig
 
@@ -22,10 +23,14 @@ class PointMassOptions(EnvOptions):
     dynamics: PointMassParams | Mapping[str, Any] | None = None
     """A :class:`~marlander_lite.pointmass.simulator.PointMassParams`, a mapping of its fields, or ``None``
     for the defaults (fitted to the PyBullet Crazyflie)."""
+    engine: Engine = "auto"
+    """``"numpy"`` (the reference), ``"numba"`` (compiled, the same results bit for bit, faster) or ``"auto"``
+    (numba when installed, unless ``MARLANDER_LITE_ENGINE=numpy``); see :mod:`marlander_lite.pointmass.kernels`."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
         _ = self.dynamics_params
+        resolve_engine(self.engine)
 
     @property
     def dynamics_params(self) -> PointMassParams | None:
@@ -36,7 +41,7 @@ class PointMassOptions(EnvOptions):
 
     def make_simulator(self, num_envs: int = 1) -> PointMassSwarm:
         """``num_envs`` point-mass swarms in one set of numpy arrays."""
-        return PointMassSwarm(self.task_config, self.platform_config, num_envs, self.dynamics_params)
+        return PointMassSwarm(self.task_config, self.platform_config, num_envs, self.dynamics_params, self.engine)
 
 
 def build_simulator(num_envs: int = 1, **options: Any) -> tuple[PointMassSwarm, SensingConfig]:
@@ -84,7 +89,7 @@ class PointMassLandingEnv(SwarmLandingEnv):
     ## Arguments
     ``gymnasium.make("marlander_lite/PointMassLanding-v0", **fields)`` with the fields of
     :class:`PointMassOptions` (``num_drones=2, platform="static-floor", platform_speed=None, task=None,
-    sensing=None, dynamics=None``), or ``options=PointMassOptions(...)``: ``platform`` is one of
+    sensing=None, dynamics=None, engine="auto"``), or ``options=PointMassOptions(...)``: ``platform`` is one of
     ``static-floor``, ``static-elevated``, ``moving-linear``, ``moving-arc``; ``platform_speed`` the
     moving tool speed (m/s, default 0.35); ``task`` a :class:`TaskConfig` or dict of fields to change;
     ``sensing`` a :class:`SensingConfig` or ``"vicon"`` for motion-capture noise and latency;

@@ -12,6 +12,10 @@ plane and per-environment values broadcast over drones without short inner loops
 that layout through arithmetic; the row-major commands of :func:`marlander_lite.task.action_to_velocity`
 are copied into it once per step. The layout is a speed choice only: ``tests/test_task.py`` checks
 that it changes no bit of a flight or of an observation. See ``benchmarks/bench_pointmass.py``.
+
+Engines: this numpy code is the reference. When numba is installed, :mod:`marlander_lite.pointmass.kernels`
+runs the same step as two compiled loops over the drones, bit for bit the same (``engine="numba"``, the
+default through ``"auto"``; inclined plates always use the reference).
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ import numpy as np
 from marlander_lite import task
 from marlander_lite.episodes import SwarmState
 from marlander_lite.platforms import PlatformConfig, PlatformMotion
+from marlander_lite.pointmass import kernels
 from marlander_lite.pointmass.family import CUSHION_LENGTH, DynamicsFamily
 from marlander_lite.rotations import IDENTITY_QUAT, vector_norm
 from marlander_lite.task import TaskConfig
@@ -108,7 +113,10 @@ def batch_zeros(*shape: int) -> np.ndarray:
 class PointMassSwarm:
     """``num_envs`` swarms of point-mass drones over moving or static platforms.
 
-    Implements :class:`marlander_lite.episodes.Simulator`; world frame, metres, m/s.
+    Implements :class:`marlander_lite.episodes.Simulator`; world frame, metres, m/s. ``engine`` picks the
+    numpy reference (``"numpy"``) or the compiled kernels (``"numba"``, the same bits, faster);
+    ``"auto"`` takes numba when it is installed, unless ``MARLANDER_LITE_ENGINE=numpy`` is set. The engine
+    that runs is :attr:`engine`.
     """
 
     def __init__(
@@ -117,6 +125,7 @@ class PointMassSwarm:
         platform: PlatformConfig,
         num_envs: int = 1,
         params: PointMassParams | None = None,
+        engine: kernels.Engine = "auto",
     ) -> None:
         if num_envs < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}.")
@@ -155,6 +164,11 @@ class PointMassSwarm:
         self._landed_offset = batch_zeros(e, n, 3)
         self._plate_pos, self._pads, self._pad_vel = batch_zeros(e, 3), batch_zeros(e, n, 3), batch_zeros(e, n, 3)
         self._update_platform()
+        # The kernels judge contacts on level plates only; an inclined plate keeps the reference.
+        self.engine = kernels.resolve_engine(engine) if self._rotation is None else "numpy"
+        """The engine that steps this simulator: ``"numpy"`` (the reference) or ``"numba"``."""
+        if self.engine == "numba":
+            self._init_kernels(e, n)
 
     # ------------------------------------------------------------------ Simulator API
     def reset(self, env_ids: np.ndarray, rng: np.random.Generator) -> None:
@@ -185,6 +199,9 @@ class PointMassSwarm:
         self.motors_stopped[env_ids] = False
 
     def step(self, velocity: np.ndarray) -> None:
+        if self.engine == "numba":
+            self._compiled_step(velocity)
+            return
         # One copy of the (row-major) commands into the engine's layout keeps every operation below on
         # contiguous planes; mixing layouts costs more than the copy.
         velocity = np.asfortranarray(velocity)
@@ -264,6 +281,41 @@ class PointMassSwarm:
         accel = axis * thrust[..., None]
         accel[..., 2] -= GRAVITY
         return accel, axis
+
+    # ------------------------------------------------------------------ compiled engine (kernels)
+    def _init_kernels(self, e: int, n: int) -> None:
+        """Scratch arrays the two kernels hand each other, and stand-ins for the family's arrays without one."""
+        self._start, self._cross = batch_zeros(e, n, 3), batch_zeros(e, n, 3)
+        self._sin, self._cos, self._angle = batch_zeros(e, n), batch_zeros(e, n), batch_zeros(e, n)
+        self._surface_params = np.array([self._half_x, self._half_y, self._lift, self.task.landed_height], dtype=float)
+        if self.family is None:  # never read: the kernel's family branch is off
+            self._inv_mass = self._drag = self._cmd_gain = self._latency = batch_zeros(1, 1, 1)
+            self._cushion = batch_zeros(1, 1)
+            self._commands = np.zeros((2, 1, 1, 3))
+
+    def _compiled_step(self, velocity: np.ndarray) -> None:
+        """:meth:`step` through :mod:`~marlander_lite.pointmass.kernels`: the same operations, drone by drone."""
+        velocity = np.asarray(velocity, dtype=float)
+        if velocity.shape != self.pos.shape:  # the kernels do not check bounds
+            raise ValueError(f"velocity must have shape {self.pos.shape} (num_envs, N, 3), got {velocity.shape}.")
+        family = self.family is not None
+        kernels.thrust_and_integrate(
+            velocity, self.pos, self.vel, self._thrust_dir, self.motors_stopped, self._gain, self._turn,
+            self._tan_tilt, self._thrust_min, self._thrust_max, family, self._cmd_gain, self._latency,
+            self._commands, self._inv_mass, self._drag, self._cushion, family and bool(self._cushion.any()),
+            self._plate_pos, self._surface_params, self._dt, self._start, self._cross, self._sin, self._cos,
+            self.quat,
+        )  # fmt: skip
+        # numpy's arctan2 (SIMD on AVX-512) and libm's differ in the last bit: numpy's, as the reference.
+        np.arctan2(self._sin, self._cos, out=self._angle)
+        self.time += self._dt
+        if self.platform.is_moving:
+            self._update_platform()
+        kernels.attitude_rates_and_contacts(
+            self._angle, self._cross, self._sin, self._start, self.pos, self.vel, self.ang_vel, self.quat,
+            self.contact, self.landed, self.motors_stopped, self._plate_pos, self._pads, self._pad_vel,
+            self._landed_offset, self._surface_params, self._pad_radius_sq, self._dt,
+        )  # fmt: skip
 
     # ------------------------------------------------------------------ robust training (DynamicsFamily)
     def _init_family(self, e: int, n: int) -> None:

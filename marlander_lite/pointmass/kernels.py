@@ -1,0 +1,301 @@
+"""Compiled kernels of the point-mass step (numba): bit for bit the numpy reference, and faster.
+
+:class:`~marlander_lite.pointmass.simulator.PointMassSwarm` is written in plain numpy: every line of
+its ``_thrust``, ``_set_attitude`` and ``_resolve_contacts`` is a whole-batch array operation that can
+be checked against the model it implements. That version stays the reference. At training sizes
+(4096 envs x 2 drones, 1024 x 16) those few dozen operations each make a pass over memory, and the
+pair loop of :func:`marlander_lite.task.min_separation` makes ``N (N - 1) / 2`` of them; a compiled
+loop that takes one drone (or one pair) at a time through the same formulas does the work in one pass.
+
+What the kernels promise, and how:
+
+* **The same bits.** Each kernel repeats the reference's floating-point operations in the same order
+  and on the same operands (no ``fastmath``, so no reassociation and no fused multiply-add); the
+  clip/maximum helpers below copy numpy's choice of operand, signed zeros included. The one function
+  whose numpy and libm results differ is ``arctan2`` (numpy uses SIMD code on AVX-512 machines), so the
+  step is split in two kernels with numpy's ``np.arctan2`` in between. ``tests/test_pointmass_kernels.py``
+  checks bit equality over seeded rollouts with resets, touchdowns, collisions, moving plates, stopped
+  motors and dynamics-family draws.
+* **Numba is optional.** Without it (or with ``MARLANDER_LITE_ENGINE=numpy`` in the environment), nothing
+  here is compiled and the simulator runs the reference. :func:`resolve_engine` decides.
+* **Little compile cost.** ``cache=True`` keeps the machine code on disk (next to this file, or in numba's
+  user cache when that is read-only), so only the first process on a machine pays the compile (a few seconds,
+  see ``benchmarks/bench_pointmass.py``).
+
+Arrays follow the simulator's layout: ``(num_envs, N, 3)`` in Fortran order, so the inner loops run over
+the environment index, which is contiguous.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Callable
+from typing import Any, Literal
+
+import numpy as np
+
+try:  # numba is optional: without it the simulator runs the numpy reference
+    import numba
+except ImportError:  # pragma: no cover - depends on the installation
+    numba = None
+
+Engine = Literal["auto", "numpy", "numba"]
+ENGINES: tuple[str, ...] = ("auto", "numpy", "numba")
+ENGINE_VARIABLE = "MARLANDER_LITE_ENGINE"
+"""Environment variable that picks the engine wherever ``engine="auto"`` (the default): ``numpy`` or ``numba``."""
+
+GRAVITY = 9.81
+CONTACT_NONE, CONTACT_OWN_PAD, CONTACT_OTHER = 0, 1, 2  # as marlander_lite.task (no import: no cycle)
+
+
+def numba_available() -> bool:
+    """Whether numba could be imported."""
+    return numba is not None
+
+
+def resolve_engine(engine: str = "auto") -> Literal["numpy", "numba"]:
+    """``"numpy"`` or ``"numba"`` for a requested engine.
+
+    ``"auto"`` reads :data:`ENGINE_VARIABLE` and otherwise takes numba when it is installed. Asking for
+    ``"numba"`` without numba installed raises, rather than silently running the slow path.
+    """
+    if engine not in ENGINES:
+        raise ValueError(f"engine must be one of {ENGINES}, got {engine!r}.")
+    if engine == "auto":
+        engine = os.environ.get(ENGINE_VARIABLE, "").strip().lower() or "auto"
+        if engine not in ENGINES:
+            raise ValueError(f"{ENGINE_VARIABLE} must be one of {ENGINES} (or unset), got {engine!r}.")
+        if engine == "auto":
+            return "numba" if numba is not None else "numpy"
+    if engine == "numba" and numba is None:
+        raise ValueError('engine="numba" needs numba: pip install numba (or use engine="numpy").')
+    return engine  # type: ignore[return-value]
+
+
+def _jit(function: Callable[..., Any]) -> Callable[..., Any]:
+    # No fastmath: it would license reassociation and fused multiply-adds, and the bits would differ.
+    return numba.njit(cache=True, nogil=True, error_model="numpy")(function) if numba is not None else function
+
+
+# ---------------------------------------------------------------- numpy's elementwise choices, as scalars
+@_jit
+def _clip(x: float, low: float, high: float) -> float:
+    """``np.clip``: keeps ``x`` when it is inside, signed zero and NaN included."""
+    return low if x < low else (high if x > high else x)
+
+
+@_jit
+def _maximum(a: float, b: float) -> float:
+    """``np.maximum(a, b)``: NaN wins; on a tie (``-0.0, 0.0``) numpy returns ``b``."""
+    return a if (a > b or a != a) else b
+
+
+@_jit
+def _minimum(a: float, b: float) -> float:
+    """``np.minimum(a, b)``: NaN wins; on a tie numpy returns ``b``."""
+    return a if (a < b or a != a) else b
+
+
+# ---------------------------------------------------------------- eq. 6: closest pair
+@_jit
+def min_separation(pos: np.ndarray) -> np.ndarray:
+    """:func:`marlander_lite.task.min_separation` compiled: the smallest distance between two drones per env.
+
+    ``pos`` ``(num_envs, N, 3)`` m, any layout; returns ``(num_envs,)`` (inf for one drone, NaN if a
+    distance is NaN). The minimum is taken over squared distances and rooted once: the square root is
+    correctly rounded and monotone, so that is the minimum of the distances to the last bit.
+    """
+    e, n = pos.shape[0], pos.shape[1]
+    best = np.full(e, np.inf)
+    nan = np.zeros(e, dtype=np.bool_)
+    for a in range(n - 1):
+        for b in range(a + 1, n):
+            for k in range(e):  # innermost over envs: contiguous in the simulator's layout, and vectorised
+                dx = pos[k, b, 0] - pos[k, a, 0]
+                dy = pos[k, b, 1] - pos[k, a, 1]
+                dz = pos[k, b, 2] - pos[k, a, 2]
+                sq = dx * dx + dy * dy + dz * dz
+                best[k] = sq if sq < best[k] else best[k]
+                nan[k] |= sq != sq
+    out = np.sqrt(best)
+    for k in range(e):
+        if nan[k]:
+            out[k] = np.nan
+    return out
+
+
+# ---------------------------------------------------------------- the step, in two halves
+@_jit
+def _rest_height(
+    x: float, y: float, plate_pos: np.ndarray, k: int, half_x: float, half_y: float, lift: float, floor: float
+) -> float:
+    """``PointMassSwarm._surface``'s rest height on a level plate: the plate top over the plate, else the floor."""
+    over_plate = abs(x - plate_pos[k, 0]) <= half_x and abs(y - plate_pos[k, 1]) <= half_y
+    return plate_pos[k, 2] + lift if over_plate else floor
+
+
+@_jit
+def thrust_and_integrate(
+    velocity: np.ndarray,
+    pos: np.ndarray,
+    vel: np.ndarray,
+    thrust_dir: np.ndarray,
+    motors_stopped: np.ndarray,
+    gain: np.ndarray,
+    turn: np.ndarray,
+    tan_tilt: np.ndarray,
+    thrust_min: np.ndarray,
+    thrust_max: np.ndarray,
+    family: bool,
+    cmd_gain: np.ndarray,
+    latency: np.ndarray,
+    commands: np.ndarray,
+    inv_mass: np.ndarray,
+    drag: np.ndarray,
+    cushion: np.ndarray,
+    use_cushion: bool,
+    plate_pos: np.ndarray,
+    surface: np.ndarray,
+    dt: float,
+    start: np.ndarray,
+    cross: np.ndarray,
+    sin: np.ndarray,
+    cos: np.ndarray,
+    quat: np.ndarray,
+) -> None:
+    """First half of ``PointMassSwarm.step`` for level plates: ``_thrust`` (or ``_family_thrust``), stopped
+    motors, the position and velocity update, and ``_set_attitude`` up to its ``arctan2``.
+
+    Updates ``pos``, ``vel``, ``thrust_dir``, ``quat`` (and ``commands`` for a family) in place and writes
+    ``start`` (positions before the step), ``cross`` (``d_prev x d``), ``sin`` (its norm) and ``cos``
+    (``d_prev . d``) for :func:`attitude_rates_and_contacts`. Per-env parameters have a drone axis of
+    length 1, per-drone ones (a family) of length N. ``surface`` is ``(half_x, half_y, lift, landed_height)``.
+    """
+    e, n = pos.shape[0], pos.shape[1]
+    per_drone = gain.shape[1] > 1
+    half_x, half_y, lift, floor = surface[0], surface[1], surface[2], surface[3]
+    half_dt = 0.5 * dt
+    for i in range(n):
+        j = i if per_drone else 0
+        for k in range(e):
+            u0, u1, u2 = velocity[k, i, 0], velocity[k, i, 1], velocity[k, i, 2]
+            if family:  # the command arrives scaled and late: see PointMassSwarm._family_thrust
+                g = cmd_gain[k, i, 0]
+                c0, c1, c2 = u0 * g, u1 * g, u2 * g
+                late = _clip(latency[k, i, 0], 0.0, 1.0)
+                later = _clip(latency[k, i, 0] - 1.0, 0.0, 1.0)
+                o0 = (1.0 - later) * commands[0, k, i, 0] + later * commands[1, k, i, 0]
+                o1 = (1.0 - later) * commands[0, k, i, 1] + later * commands[1, k, i, 1]
+                o2 = (1.0 - later) * commands[0, k, i, 2] + later * commands[1, k, i, 2]
+                u0, u1, u2 = (1.0 - late) * c0 + late * o0, (1.0 - late) * c1 + late * o1, (1.0 - late) * c2 + late * o2
+                commands[1, k, i, 0], commands[1, k, i, 1] = commands[0, k, i, 0], commands[0, k, i, 1]
+                commands[1, k, i, 2] = commands[0, k, i, 2]
+                commands[0, k, i, 0], commands[0, k, i, 1], commands[0, k, i, 2] = c0, c1, c2
+            v0, v1, v2 = vel[k, i, 0], vel[k, i, 1], vel[k, i, 2]
+            p0, p1, p2 = thrust_dir[k, i, 0], thrust_dir[k, i, 1], thrust_dir[k, i, 2]
+            t_min, t_max = thrust_min[k, j], thrust_max[k, j]
+            # _thrust: the wanted acceleration, the thrust vector for it within the tilt and thrust limits ...
+            w0 = (u0 - v0) * gain[k, j, 0]
+            w1 = (u1 - v1) * gain[k, j, 1]
+            w2 = (u2 - v2) * gain[k, j, 2] + GRAVITY
+            fz = _clip(w2, t_min, t_max)
+            horizontal = math.sqrt(w0 * w0 + w1 * w1)
+            shrink = _minimum(1.0, fz * tan_tilt[k, j] / _maximum(horizontal, 1e-12))
+            w0, w1, w2 = w0 * shrink, w1 * shrink, fz
+            norm = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+            # ... the axis turned part of the way towards it, and the thrust along that axis.
+            a0 = p0 + (w0 / norm - p0) * turn[k, j, 0]
+            a1 = p1 + (w1 / norm - p1) * turn[k, j, 0]
+            a2 = p2 + (w2 / norm - p2) * turn[k, j, 0]
+            norm = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+            a0, a1, a2 = a0 / norm, a1 / norm, a2 / norm
+            thrust = _clip(fz / _maximum(a2, 0.1), t_min, t_max)
+            f0, f1, f2 = a0 * thrust, a1 * thrust, a2 * thrust - GRAVITY
+            if family:  # the nominal mass's acceleration scaled to the true mass, drag, ground cushion
+                m = inv_mass[k, i, 0]
+                f0, f1, f2 = f0 * m, f1 * m, (f2 + GRAVITY) * m - GRAVITY
+                d = drag[k, i, 0]
+                f0, f1, f2 = f0 - d * v0, f1 - d * v1, f2 - d * v2
+                if use_cushion:
+                    x, y, z = pos[k, i, 0], pos[k, i, 1], pos[k, i, 2]
+                    height = _maximum(z - _rest_height(x, y, plate_pos, k, half_x, half_y, lift, floor), 0.0)
+                    r = 0.04 / (0.04 + height)  # family.CUSHION_LENGTH
+                    f2 = f2 + cushion[k, i] * GRAVITY * (r * r)
+            if motors_stopped[k, i]:  # gravity alone, and the attitude stays
+                f0, f1, f2 = 0.0, 0.0, -GRAVITY
+                a0, a1, a2 = p0, p1, p2
+            for c, f in ((0, f0), (1, f1), (2, f2)):
+                start[k, i, c] = pos[k, i, c]
+                pos[k, i, c] = pos[k, i, c] + (vel[k, i, c] + half_dt * f) * dt
+                vel[k, i, c] = vel[k, i, c] + f * dt
+            # _set_attitude, up to the arctan2 that numpy computes between the two kernels.
+            x0, x1, x2 = p1 * a2 - p2 * a1, p2 * a0 - p0 * a2, p0 * a1 - p1 * a0
+            cross[k, i, 0], cross[k, i, 1], cross[k, i, 2] = x0, x1, x2
+            sin[k, i] = math.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
+            cos[k, i] = p0 * a0 + p1 * a1 + p2 * a2
+            scale = 1.0 / math.sqrt(2.0 * (1.0 + a2))
+            quat[k, i, 0], quat[k, i, 1], quat[k, i, 3] = -a1 * scale, a0 * scale, (1.0 + a2) * scale
+            thrust_dir[k, i, 0], thrust_dir[k, i, 1], thrust_dir[k, i, 2] = a0, a1, a2
+
+
+@_jit
+def attitude_rates_and_contacts(
+    angle: np.ndarray,
+    cross: np.ndarray,
+    sin: np.ndarray,
+    start: np.ndarray,
+    pos: np.ndarray,
+    vel: np.ndarray,
+    ang_vel: np.ndarray,
+    quat: np.ndarray,
+    contact: np.ndarray,
+    landed: np.ndarray,
+    motors_stopped: np.ndarray,
+    plate_pos: np.ndarray,
+    pads: np.ndarray,
+    pad_vel: np.ndarray,
+    landed_offset: np.ndarray,
+    surface: np.ndarray,
+    pad_radius_sq: float,
+    dt: float,
+) -> None:
+    """Second half of ``PointMassSwarm.step`` for level plates, after the plates have moved: the angular
+    velocity from ``angle = arctan2(sin, cos)``, ``_resolve_contacts`` and ``_hold_landed``.
+
+    Updates ``pos``, ``vel``, ``ang_vel``, ``quat`` and ``contact`` in place.
+    """
+    e, n = pos.shape[0], pos.shape[1]
+    half_x, half_y, lift, floor = surface[0], surface[1], surface[2], surface[3]
+    for i in range(n):
+        for k in range(e):
+            rate = angle[k, i] / (_maximum(sin[k, i], 1e-12) * dt)
+            for c in range(3):
+                ang_vel[k, i, c] = cross[k, i, c] * rate
+            if landed[k, i]:  # _hold_landed: on the pad, moving with it, level; it touches nothing new
+                for c in range(3):
+                    pos[k, i, c] = pads[k, i, c] + landed_offset[k, i, c]
+                    vel[k, i, c] = pad_vel[k, i, c]
+                    ang_vel[k, i, c] = 0.0
+                quat[k, i, 0], quat[k, i, 1], quat[k, i, 2], quat[k, i, 3] = 0.0, 0.0, 0.0, 1.0
+                contact[k, i] = CONTACT_NONE
+                continue
+            x, y = pos[k, i, 0], pos[k, i, 1]
+            rest = _rest_height(x, y, plate_pos, k, half_x, half_y, lift, floor)
+            if not pos[k, i, 2] <= rest:
+                contact[k, i] = CONTACT_NONE
+                continue
+            if contact[k, i] == CONTACT_NONE:  # first contact: stop where the path crossed the surface
+                z0, z1 = start[k, i, 2], pos[k, i, 2]
+                fraction = _clip((z0 - rest) / _maximum(z0 - z1, 1e-12), 0.0, 1.0)
+                for c in range(3):
+                    pos[k, i, c] = start[k, i, c] + fraction * (pos[k, i, c] - start[k, i, c])
+                x, y = pos[k, i, 0], pos[k, i, 1]
+                rest = _rest_height(x, y, plate_pos, k, half_x, half_y, lift, floor)
+            else:  # resting: it stops pushing into the surface; without thrust, friction holds it
+                vel[k, i, 2] = _maximum(vel[k, i, 2], 0.0)
+                if motors_stopped[k, i]:
+                    vel[k, i, 0], vel[k, i, 1], vel[k, i, 2] = 0.0, 0.0, 0.0
+            ex, ey = x - pads[k, i, 0], y - pads[k, i, 1]
+            contact[k, i] = CONTACT_OWN_PAD if ex * ex + ey * ey <= pad_radius_sq else CONTACT_OTHER
+            pos[k, i, 2] = rest

@@ -1,0 +1,147 @@
+"""The compiled point-mass engine (numba) against the numpy reference: the same bits, flight after flight."""
+
+import numpy as np
+import pytest
+
+from marlander_lite import task
+from marlander_lite.episodes import LandingEpisodes
+from marlander_lite.platforms import PlateGeometry, PlatformConfig
+from marlander_lite.pointmass import PointMassParams, PointMassSwarm, kernels
+from marlander_lite.pointmass.family import DynamicsFamily
+from marlander_lite.sensing import SensingConfig
+from marlander_lite.task import TaskConfig
+
+pytest.importorskip("numba")
+
+
+def brute_force_min_separation(pos: np.ndarray) -> np.ndarray:
+    """Every pair's distance with np.linalg.norm, independent of both implementations."""
+    n = pos.shape[1]
+    if n < 2:
+        return np.full(len(pos), np.inf)
+    i, j = np.triu_indices(n, 1)
+    return np.linalg.norm(pos[:, j] - pos[:, i], axis=-1).min(axis=1)
+
+
+@pytest.mark.parametrize("num_drones", [1, 2, 3, 16])
+@pytest.mark.parametrize("order", ["C", "F"])
+def test_min_separation_kernel_is_the_reference_to_the_last_bit(num_drones, order):
+    pos = np.random.default_rng(num_drones).uniform(-2, 2, (37, num_drones, 3))
+    pos[5] = pos[5, :1]  # all drones of env 5 in one spot: separation 0
+    pos = np.asarray(pos, order=order)
+    reference = task.min_separation_numpy(pos)
+    np.testing.assert_array_equal(kernels.min_separation(pos), reference)
+    np.testing.assert_allclose(reference, brute_force_min_separation(pos), rtol=1e-15)
+    if num_drones > 1:
+        assert reference[5] == 0.0
+
+
+def test_min_separation_kernel_propagates_nan_and_inf_like_numpy():
+    pos = np.random.default_rng(0).uniform(-2, 2, (4, 3, 3))
+    pos[1, 2, 0] = np.nan
+    pos[2, 0, 1] = np.inf  # one drone at infinity: the other pair still counts
+    pos[3, :, 2] = np.inf  # inf - inf: NaN, as numpy gives
+    with np.errstate(invalid="ignore"):  # inf - inf
+        reference = task.min_separation_numpy(pos)
+    ours = kernels.min_separation(pos)
+    np.testing.assert_array_equal(ours, reference)
+    assert np.isnan(ours[[1, 3]]).all() and np.isfinite(ours[[0, 2]]).all()
+
+
+def go_to_pad(obs: np.ndarray, num_drones: int) -> np.ndarray:
+    """Fly down a cone onto the own pad (lands most drones), as in tests/test_pointmass.py."""
+    p = obs.reshape(len(obs), num_drones, -1)[..., 0:3].copy()
+    p[..., 2] -= np.minimum(2.0 * np.linalg.norm(p[..., :2], axis=-1), 1.0) - 0.05
+    v = -2.0 * p
+    v *= np.minimum(1.0, 1.0 / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-9))
+    return (v / 3.0).reshape(len(p), -1)
+
+
+def rollout(engine, platform, num_drones, params, sensing, num_envs=24, steps=120):
+    """Every state and outcome of a seeded rollout: landing controller or random actions, auto-resets, and
+    stopped motors in some drones half way."""
+    sim = PointMassSwarm(TaskConfig(num_drones=num_drones), PlatformConfig(kind=platform), num_envs, params, engine)
+    episodes = LandingEpisodes(sim, sensing, seed=7)
+    obs = episodes.reset()
+    rng = np.random.default_rng(1)
+    careful = rng.random(num_envs) < 0.7  # these envs fly the landing controller, the others at random
+    records, events = [], np.zeros(4, dtype=int)
+    for step in range(steps):
+        action = np.where(careful[:, None], go_to_pad(obs, num_drones), rng.uniform(-1, 1, (num_envs, 3 * num_drones)))
+        if step == steps // 2:
+            sim.stop_motors(rng.random((num_envs, num_drones)) < 0.1)
+        out = episodes.step(action)
+        obs = out.obs
+        state = [sim.pos, sim.vel, sim.quat, sim.ang_vel, sim.contact]  # updated in place: copy now
+        records.append([out.obs, out.reward, out.landed_now, *(np.array(a, copy=True) for a in state)])
+        events += (out.landed_now.sum(), out.crashed.sum(), out.collided.sum(), (sim.contact != 0).sum())
+        if out.done.any():
+            ids = np.flatnonzero(out.done)
+            obs = obs.copy()
+            obs[ids] = episodes.reset(ids)
+            records.append([obs.copy()])
+    return sim, records, events
+
+
+@pytest.mark.parametrize(
+    ("platform", "num_drones", "family", "sensing"),
+    [
+        ("static-floor", 2, False, None),
+        ("static-floor", 3, True, SensingConfig.vicon()),
+        ("static-elevated", 1, True, SensingConfig.vicon()),
+        ("moving-linear", 2, False, None),
+        ("moving-arc", 4, False, SensingConfig.robust()),
+    ],
+)
+def test_compiled_engine_flies_the_reference_bit_for_bit(platform, num_drones, family, sensing):
+    params = PointMassParams(family=DynamicsFamily()) if family else None
+    sim, reference, events = rollout("numpy", platform, num_drones, params, sensing)
+    compiled_sim, compiled, compiled_events = rollout("numba", platform, num_drones, params, sensing)
+    assert (sim.engine, compiled_sim.engine) == ("numpy", "numba")
+    landings, crashes, _, contacts = events
+    assert crashes > 0 and contacts > 0, events  # the rollouts reach the contact branches ...
+    assert landings > 0 or platform.startswith("moving"), events  # ... and the landed one (static plates)
+    np.testing.assert_array_equal(compiled_events, events)
+    assert len(compiled) == len(reference)
+    for step, (ours, theirs) in enumerate(zip(compiled, reference, strict=True)):
+        for a, b in zip(ours, theirs, strict=True):
+            assert np.array_equal(a, b, equal_nan=True), f"first difference at record {step}"
+
+
+def test_collisions_are_judged_alike_on_both_engines():
+    """Random commands with 8 drones in the arena: collisions happen, and both engines see the same ones."""
+    collided = {}
+    for engine in ("numpy", "numba"):
+        sim = PointMassSwarm(TaskConfig(num_drones=8, spawn_separation=0.2), PlatformConfig(), 64, engine=engine)
+        episodes = LandingEpisodes(sim, seed=3)
+        episodes.reset()
+        rng = np.random.default_rng(0)
+        collided[engine] = np.array([episodes.step(rng.uniform(-1, 1, (64, 24))).collided for _ in range(10)])
+    assert collided["numpy"].any()
+    np.testing.assert_array_equal(collided["numba"], collided["numpy"])
+
+
+def test_engine_choice_and_its_errors(monkeypatch):
+    cfg, plate = TaskConfig(), PlatformConfig()
+    monkeypatch.delenv(kernels.ENGINE_VARIABLE, raising=False)
+    assert PointMassSwarm(cfg, plate, 2).engine == "numba"  # auto, numba installed
+    monkeypatch.setenv(kernels.ENGINE_VARIABLE, "numpy")
+    assert PointMassSwarm(cfg, plate, 2).engine == "numpy"
+    assert PointMassSwarm(cfg, plate, 2, engine="numba").engine == "numba"  # an explicit choice wins
+    monkeypatch.setenv(kernels.ENGINE_VARIABLE, "fortran")
+    with pytest.raises(ValueError, match="MARLANDER_LITE_ENGINE must be one of"):
+        PointMassSwarm(cfg, plate, 2)
+    with pytest.raises(ValueError, match="engine must be one of"):
+        PointMassSwarm(cfg, plate, 2, engine="jax")
+    inclined = PlatformConfig(geometry=PlateGeometry(inclination_deg=10.0))
+    assert PointMassSwarm(cfg, inclined, 2, engine="numba").engine == "numpy"  # level plates only
+    sim = PointMassSwarm(cfg, plate, 2, engine="numba")
+    with pytest.raises(ValueError, match=r"velocity must have shape \(2, 2, 3\)"):
+        sim.step(np.zeros((2, 6)))
+
+
+def test_asking_for_numba_without_it_says_how_to_get_it(monkeypatch):
+    monkeypatch.setattr(kernels, "numba", None)
+    assert kernels.resolve_engine("auto") == "numpy"
+    with pytest.raises(ValueError, match="pip install numba"):
+        kernels.resolve_engine("numba")
