@@ -232,6 +232,23 @@ def test_touching_another_pad_or_landing_too_fast_is_a_crash():
     assert outcome.crashed[0, 0] and not outcome.landed[0, 0]
 
 
+@pytest.mark.parametrize("sink", [0.0, 0.004, 0.006])
+def test_a_drone_sunk_into_its_pad_touches_its_pad_not_the_plate_under_it(sink):
+    """The pad is 2.5 mm proud of the plate: a drone that settles deeper also meets the plate's collision box,
+    but under its own pad. That contact is the pad; 0.2 m off the pad, on the bare plate, it is not."""
+    from marlander_lite.task import CONTACT_OWN_PAD
+
+    sim = make_sim(num_drones=2)
+    LandingEpisodes(sim, seed=0).reset()
+    rest = sim.task.landed_height - sink
+    on_pad, off_pad = sim.pad_pos[0, 0] + [0.03, 0.0, rest], sim.pad_pos[0, 1] + [0.0, 0.2, rest]
+    sim.place(0, np.vstack([on_pad, off_pad]))
+    sim.contact[...] = 0
+    sim.stop_motors(np.array([[True, True]]))
+    sim.step(np.zeros((1, 2, 3)))
+    assert sim.contact[0].tolist() == [CONTACT_OWN_PAD, CONTACT_OTHER]
+
+
 def go_to_pad(obs, num_drones, gain=2.0, speed=1.0, below=0.15):
     """A hand-written controller: fly to a cone above the pad, then descend along it at about 0.3 m/s."""
     p = obs.reshape(num_drones, 13)[:, 0:3].copy()

@@ -145,6 +145,7 @@ class CrazyflieSwarm:
         self.pos, self.quat = self._kinematics[..., 0:3], self._kinematics[..., 3:7]
         self.vel, self.ang_vel = self._kinematics[..., 7:10], self._kinematics[..., 10:13]
         self.pad_pos, self.pad_vel = np.zeros((1, n, 3)), np.zeros((1, n, 3))
+        self._pad_radius_sq = self.platform.geometry.pad_radius**2
         self.contact = np.zeros((1, n), dtype=np.int8)
         self.landed = np.zeros((1, n), dtype=bool)
         self.motors_stopped = np.zeros((1, n), dtype=bool)
@@ -357,18 +358,28 @@ class CrazyflieSwarm:
             self._touching = [False] * self.num_drones
 
     def _register_contacts(self, points: tuple) -> None:
-        """Turn PyBullet contact points into contact codes and touchdown velocities."""
+        """Turn PyBullet contact points into contact codes and touchdown velocities.
+
+        A drone touches its own pad when the contact is with its pad's link, or with the plate *under* its
+        pad (within the pad radius of the pad centre): the pad is only 2.5 mm proud of the plate, and a drone
+        that settles a few millimetres into the soft contact at touchdown meets the plate's collision box
+        there too. That is still a touchdown on the pad, not on the plate beside it.
+        """
         index, platform, pads = self.world.drone_index, self.world.platform, self.world.pad_links
         contact = self.contact[0]
         touching = [False] * self.num_drones
         for point in points:
             if point[8] > CONTACT_TOLERANCE:
                 continue
-            for me, other, other_link in ((point[1], point[2], point[4]), (point[2], point[1], point[3])):
+            # (drone body, other body, other link, contact point on the other body)
+            for me, other, other_link, at in (
+                (point[1], point[2], point[4], point[6]),
+                (point[2], point[1], point[3], point[5]),
+            ):
                 i = index.get(me)
                 if i is None:
                     continue
-                own = other == platform and other_link == pads[i]
+                own = other == platform and (other_link == pads[i] or (other_link == -1 and self._under_own_pad(i, at)))
                 code = task.CONTACT_OWN_PAD if own else task.CONTACT_OTHER
                 if code > contact[i]:
                     contact[i] = code
@@ -378,6 +389,11 @@ class CrazyflieSwarm:
                 self._touch_vel[i] = self._vels[i][0]  # velocity at the last control tick before the touch
                 self._touched_now[i] = True
         self._touching = touching
+
+    def _under_own_pad(self, drone: int, point: tuple[float, float, float]) -> bool:
+        """Whether a contact point on the plate lies within the pad radius of drone ``drone``'s pad centre."""
+        dx, dy = point[0] - self.pad_pos[0, drone, 0], point[1] - self.pad_pos[0, drone, 1]
+        return dx * dx + dy * dy <= self._pad_radius_sq
 
     def _read_state(self) -> None:
         """Read every drone's pose and velocity from PyBullet (two calls per drone), as tuples."""
