@@ -186,3 +186,27 @@ def test_library_errors_are_one_line(capsys, tmp_path):
     config = tmp_path / "lab.yaml"
     config.write_bytes(BINARY)
     fails(capsys, ["deploy", "--sim", "--config", str(config), "--policy", str(POLICY)], "lab.yaml")
+
+
+def _commands(parser, prefix=()):
+    """Every (sub)command path of the CLI, found in argparse's own parser tree."""
+    import argparse
+
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield (*prefix, name)
+                yield from _commands(sub, (*prefix, name))
+
+
+def test_every_command_prints_its_help(capsys: pytest.CaptureFixture[str]) -> None:
+    """argparse %-formats help text: a literal '%' in a help string breaks --help of that command."""
+    commands = list(_commands(cli.build_parser()))
+    assert ("transfer",) in commands and ("plot", "profiles") in commands
+    for command in commands:
+        try:
+            code = main([*command, "--help"])  # 'train --help' prints the preset's values, then returns
+        except SystemExit as stop:
+            code = stop.code
+        assert code == 0, command
+        assert "usage: marlander" in capsys.readouterr().out

@@ -48,7 +48,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--columns",
         type=_choices(columns, "column(s)"),
         default=columns,
-        help=f"comma-separated, from: {', '.join(columns)} (or all)",
+        help=f"comma-separated, from: {', '.join(columns)} (or all)".replace("%", "%%"),  # argparse formats help
     )
     p.add_argument(
         "--rows", type=_choices(rows, "row(s)"), default=rows, help=f"comma-separated, from: {', '.join(rows)} (or all)"
