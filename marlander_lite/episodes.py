@@ -52,6 +52,18 @@ class Simulator(Protocol):
     platform: PlatformConfig
     num_envs: int
 
+    def pad_offset(self, rel_pos: np.ndarray) -> np.ndarray:
+        """Distance of each drone from its pad centre within the pad plane, ``(num_envs, N)`` m.
+
+        This is what touchdown compares with the pad radius and what a landing records as its error. On a
+        level pad it is the horizontal distance; on an inclined plate it is measured in the pad frame
+        (:func:`marlander_lite.task.pad_frame_errors`), so a drone that sinks straight down onto a pad tilted by
+        ``theta`` lands ``landed_height * tan(theta)`` off its centre.
+        """
+        if not self._inclined:
+            return np.sqrt(rel_pos[..., 0] ** 2 + rel_pos[..., 1] ** 2)
+        return task.pad_frame_errors(rel_pos, self.pad_normal)[1]
+
     def reset(self, env_ids: np.ndarray, rng: np.random.Generator) -> None:
         """Place platform and drones of ``env_ids`` at random (``task.sample_spawn_positions``), at rest."""
 
@@ -136,12 +148,17 @@ class LandingEpisodes:
         self.sim = simulator
         self.task = simulator.task
         self.sensing = sensing or SensingConfig()
-        self.pad_radius = simulator.platform.geometry.pad_radius
+        geometry = simulator.platform.geometry
+        self.pad_radius = geometry.pad_radius
+        self.pad_normal = geometry.normal()
+        """Unit normal of every pad ``(3,)``: ``+z``, or tilted on an inclined plate (beyond the paper)."""
+        self._inclined = geometry.inclination_deg != 0
         e, n = simulator.num_envs, self.task.num_drones
         self.num_envs, self.num_drones = e, n
         self.rng = np.random.default_rng(seed)
         self.channel = ObservationChannel(self.sensing, e, n, self.task.dt, self.task.obs_per_drone)
-        self._goal_lift = np.array([0.0, 0.0, self.task.landed_height])
+        # A landed drone's centre rests landed_height above its pad along the pad normal: that is eq. 2's goal.
+        self._goal_lift = self.task.landed_height * self.pad_normal
         self.steps = np.zeros(e, dtype=np.int64)
         # Fortran order (env index fastest) matches the simulators' arrays; see pointmass.simulator.
         self.landed = np.zeros((e, n), dtype=bool, order="F")
@@ -166,6 +183,18 @@ class LandingEpisodes:
         rel_vel = s.vel - s.pad_vel
         pad_vel = s.pad_vel if self.task.observe_platform_velocity else None
         return rel_pos, rel_vel, task.observe(rel_pos, s.quat, rel_vel, s.ang_vel, pad_vel)
+
+    def pad_offset(self, rel_pos: np.ndarray) -> np.ndarray:
+        """Distance of each drone from its pad centre within the pad plane, ``(num_envs, N)`` m.
+
+        This is what touchdown compares with the pad radius and what a landing records as its error. On a
+        level pad it is the horizontal distance; on an inclined plate it is measured in the pad frame
+        (:func:`marlander_lite.task.pad_frame_errors`), so a drone that sinks straight down onto a pad tilted by
+        ``theta`` lands ``landed_height * tan(theta)`` off its centre.
+        """
+        if not self._inclined:
+            return np.sqrt(rel_pos[..., 0] ** 2 + rel_pos[..., 1] ** 2)
+        return task.pad_frame_errors(rel_pos, self.pad_normal)[1]
 
     def reset(self, env_ids: np.ndarray | None = None) -> np.ndarray:
         """Start new episodes in ``env_ids`` (all by default); returns their observations ``(k, N, 13)``."""
@@ -198,7 +227,7 @@ class LandingEpisodes:
         rel_pos, rel_vel, obs = self._measure(s)
         dist = vector_norm(rel_pos)
         speed = vector_norm(rel_vel)
-        horizontal = np.sqrt(rel_pos[..., 0] ** 2 + rel_pos[..., 1] ** 2)
+        horizontal = self.pad_offset(rel_pos)
         active = ~self.landed
         landed_now, crashed = task.touchdown_outcome(s.contact, horizontal, speed, self.landed, self.pad_radius, cfg)
         r_drones = task.drone_rewards(self.prev_dist, dist, speed, landed_now, active, cfg)

@@ -213,12 +213,14 @@ def test_point_mass_drones_touch_an_inclined_plate_where_its_tilted_top_face_is(
     start = np.array([state.pad_pos[0, 0] + above, up_slope + above])
     episodes.sim.place(0, start)
     sink = np.array([[[0.0, 0.0, -0.1], [0.0, 0.0, -0.1]]])  # 0.3 m/s down
-    touched = {}
+    touched, landing_error = {}, np.nan
     for _ in range(20):
         out = episodes.step(sink)
         for i in range(2):
             if out.landed_now[0, i] or out.crashed[0, i]:
                 touched.setdefault(i, (episodes.sim.pos[0, i].copy(), int(episodes.sim.contact[0, i])))
+            if out.landed_now[0, 0]:
+                landing_error = float(out.landing_error[0, 0])
         if len(touched) == 2:
             break
     pad = state.pad_pos[0, 0]
@@ -233,6 +235,8 @@ def test_point_mass_drones_touch_an_inclined_plate_where_its_tilted_top_face_is(
     # In the pad frame drone 0, straight above the pad centre, sits landed_height along the normal, rest tan(tilt) off.
     height, offset = pad_frame_errors(touched[0][0] - pad, geometry.normal())
     assert height == pytest.approx(rest, abs=1e-9) and offset == pytest.approx(rest * s / c, abs=1e-9)
+    # The episode judges the landing in that frame too: its error is the in-plane offset, not the horizontal 0.
+    assert landing_error == pytest.approx(rest * s / c, abs=1e-9)
 
 
 def test_pad_frame_errors_worked_by_hand():
