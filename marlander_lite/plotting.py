@@ -115,3 +115,42 @@ def _plot_over_seeds(ax: plt.Axes, runs: Sequence[Path], curve: str, label: str)
     centre = "IQM" if len(runs) >= 4 else "mean"
     (line,) = ax.plot(summary.steps / 1e6, summary.centre, label=f"{label} ({centre} of {len(runs)} seeds)")
     ax.fill_between(summary.steps / 1e6, summary.low, summary.high, color=line.get_color(), alpha=0.25, lw=0)
+
+
+def plot_performance_profiles(
+    sweeps: Sequence[str | Path],
+    labels: Sequence[str] | None = None,
+    conditions: str = "protocol",
+    out: str | Path | None = None,
+) -> plt.Figure:
+    """Success-rate performance profiles of sweeps (Agarwal et al., NeurIPS 2021), one line per sweep.
+
+    A point ``(tau, y)`` says: a fraction ``y`` of all (seed, condition) runs landed in more than ``tau`` of
+    their episodes; the conditions are those of ``conditions`` (default: the ten platform set-ups of the
+    paper's Tables I and II). The shaded band is a 95 % stratified bootstrap over seeds. A line that stays
+    high to the right is a method that lands reliably everywhere, on every seed.
+    """
+    from marlander_lite.experiments.seed_stats import sweep_profile
+
+    labels = list(labels) if labels is not None else [Path(s).name for s in sweeps]
+    if len(labels) != len(sweeps):
+        raise ValueError(f"Got {len(labels)} labels for {len(sweeps)} sweeps.")
+    profiles = [sweep_profile(s, conditions) for s in sweeps]  # all read before a figure opens
+    fig, ax = plt.subplots(figsize=(6.0, 4.0))
+    for profile, label in zip(profiles, labels, strict=True):
+        text = f"{label} ({profile.seeds} seeds x {len(profile.conditions)} conditions)"
+        (line,) = ax.step(100 * profile.taus, profile.fraction, where="post", label=text)
+        ax.fill_between(
+            100 * profile.taus, profile.low, profile.high, step="post", color=line.get_color(), alpha=0.2, lw=0
+        )
+    ax.set_xlabel("Success rate threshold tau (%)")
+    ax.set_ylabel("Fraction of runs with success > tau")
+    ax.set_title(f"Performance profile over the {conditions!r} conditions")
+    ax.set_ylim(-0.02, 1.02)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    if out is not None:
+        Path(out).parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(out, dpi=120)
+    return fig

@@ -22,6 +22,7 @@ from marlander_lite.experiments import seed_stats
 from marlander_lite.training.presets import get_preset
 from marlander_lite.training.provenance import policy_digest
 from marlander_lite.training.sweep import (
+    SWEEP_CONDITIONS,
     SWEEP_FILE,
     evaluate_sweep,
     open_sweep,
@@ -29,6 +30,7 @@ from marlander_lite.training.sweep import (
     read_evaluation,
     run_sweep,
     seed_folder,
+    write_evaluation,
 )
 
 TINY = get_preset("quick-cpu").replace(total_steps=2048, num_envs=16, batch_size=256, checkpoint_every=0)
@@ -233,6 +235,46 @@ def test_stratified_bootstrap_never_mixes_conditions() -> None:
 def test_performance_profile_counts_runs_above_each_threshold() -> None:
     scores = np.array([[0.2, 0.9], [0.6, 1.0]])
     assert seed_stats.performance_profile(scores, np.array([0.0, 0.5, 0.95])).tolist() == [1.0, 0.75, 0.25]
+
+
+def test_profile_band_resamples_seeds_within_each_condition() -> None:
+    # Condition a: both seeds land every time; condition b: one seed 0 %, the other 60 %.
+    scores = np.array([[1.0, 0.0], [1.0, 0.6]])
+    profile = seed_stats.profile_with_band(scores, np.array([0.5, 0.99]), ("a", "b"))
+    assert profile.fraction.tolist() == [0.75, 0.5] and profile.conditions == ("a", "b")
+    # Above 0.5, a always gives 2 of 4 runs and b gives 0, 1 or 2 more (both seeds drawn alike 1 time in 4):
+    # the band is [0.5, 1.0]. Above 0.99 only a counts, whatever the draw: a zero-width band.
+    assert profile.low.tolist() == [0.5, 0.5] and profile.high.tolist() == [1.0, 0.5]
+    with pytest.raises(ValueError, match=r"\(seeds, conditions\)"):
+        seed_stats.profile_with_band(np.array([0.5, 0.6]), np.array([0.5]))
+
+
+def test_protocol_profile_of_a_sweep_and_its_plot_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    names = [c.name for c in SWEEP_CONDITIONS["protocol"]]
+    assert len(names) == 10 and names[0] == "point mass, floor" and "point mass, arc 0.5 m/s" in names
+    rows = [
+        {"seed": seed, "condition": name, "episodes": 10, "success_rate": 0.9 if i < 2 else 0.1 * seed}
+        for seed in (0, 1)
+        for i, name in enumerate(names)
+    ]
+    rows.append({"seed": 2, "condition": names[0], "episodes": 10, "success_rate": 1.0})  # not flown everywhere
+    for row in rows:
+        row.update(landing_error_mean_cm=1.0, landing_time_mean_s=3.0, collision_rate=0.0)
+    write_evaluation(tmp_path / "evaluation.csv", rows)
+    seeds, conditions, scores = seed_stats.sweep_scores(tmp_path)
+    assert seeds == [0, 1] and conditions == names and scores.shape == (2, 10)
+    assert scores[1, 5] == pytest.approx(0.1)
+    profile = seed_stats.sweep_profile(tmp_path, points=11)
+    assert profile.fraction[5] == pytest.approx(4 / 20)  # above tau = 0.5: the static conditions of both seeds
+    png = tmp_path / "profiles.png"
+    assert main(["plot", "profiles", str(tmp_path), "--out", str(png)]) == 0 and png.stat().st_size > 0
+    with pytest.raises(SystemExit):
+        main(["plot", "profiles", str(tmp_path), "--out", str(png)])
+    assert "already exists" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="allowed: success_rate"):
+        seed_stats.sweep_scores(tmp_path, metric="reward")
+    with pytest.raises(ValueError, match="No seed"):
+        seed_stats.sweep_scores(tmp_path, conditions="quick")
 
 
 def test_one_seed_has_no_interval() -> None:

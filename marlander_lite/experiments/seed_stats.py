@@ -98,6 +98,76 @@ def performance_profile(scores: np.ndarray, taus: np.ndarray) -> np.ndarray:
 
 
 @dataclass(frozen=True)
+class Profile:
+    """A performance profile over (seed, condition) runs with its stratified bootstrap band."""
+
+    taus: np.ndarray
+    """``(k,)`` score thresholds."""
+    fraction: np.ndarray
+    """``(k,)`` fraction of runs scoring above each tau."""
+    low: np.ndarray
+    high: np.ndarray
+    seeds: int
+    conditions: tuple[str, ...]
+
+
+def profile_with_band(
+    scores: np.ndarray, taus: np.ndarray, conditions: Sequence[str] = (), seed: int = 0, resamples: int = RESAMPLES
+) -> Profile:
+    """:func:`performance_profile` of ``scores`` ``(seeds, conditions)`` with a 95 % stratified bootstrap band.
+
+    Each resample draws the seeds again, with replacement, separately within every condition (the strata of
+    Agarwal et al.), and recomputes the profile; the band is the 2.5 and 97.5 percentiles at each tau.
+    """
+    scores = np.asarray(scores, dtype=float)
+    if scores.ndim != 2 or not scores.size:
+        raise ValueError(f"scores must be a non-empty (seeds, conditions) array, got shape {scores.shape}.")
+    taus = np.asarray(taus, dtype=float)
+    fraction = performance_profile(scores, taus)
+    n_seeds, n_cond = scores.shape
+    picks = np.random.default_rng(seed).integers(0, n_seeds, size=(resamples, n_seeds, n_cond))
+    resampled = scores[picks, np.arange(n_cond)]  # (resamples, seeds, conditions)
+    profiles = (resampled[..., None] > taus).mean(axis=(1, 2))  # (resamples, k)
+    low, high = np.percentile(profiles, [2.5, 97.5], axis=0) if n_seeds > 1 else (fraction * np.nan,) * 2
+    names = tuple(conditions) or tuple(str(i) for i in range(n_cond))
+    return Profile(taus, fraction, low, high, n_seeds, names)
+
+
+def sweep_scores(
+    out: str | Path, conditions: str = "protocol", metric: str = "success_rate"
+) -> tuple[list[int], list[str], np.ndarray]:
+    """``(seeds, condition names, scores (seeds, conditions))`` from a sweep's ``evaluation.csv``.
+
+    ``conditions`` names a set of :data:`marlander_lite.training.sweep.SWEEP_CONDITIONS`; only seeds that were
+    flown on every one of them count. ``metric`` is a column of the CSV (default ``success_rate``).
+    """
+    from marlander_lite.training.sweep import EVALUATION_FIELDS, EVALUATION_FILE, SWEEP_CONDITIONS, read_evaluation
+
+    if conditions not in SWEEP_CONDITIONS:
+        raise ValueError(f"Unknown evaluation set {conditions!r}; allowed: {', '.join(SWEEP_CONDITIONS)}.")
+    if metric not in EVALUATION_FIELDS[3:]:
+        raise ValueError(f"Unknown metric {metric!r}; allowed: {', '.join(EVALUATION_FIELDS[3:])}.")
+    path = Path(out) / EVALUATION_FILE
+    if not path.is_file():
+        raise FileNotFoundError(f"{out} has no {EVALUATION_FILE}; run 'marlander sweep --evaluate {conditions}'.")
+    names = [c.name for c in SWEEP_CONDITIONS[conditions]]
+    table = {(r["seed"], r["condition"]): r[metric] for r in read_evaluation(path)}
+    seeds = sorted({seed for seed, _ in table if all((seed, n) in table for n in names)})
+    if not seeds:
+        raise ValueError(
+            f"No seed of {out} was flown on every condition of {conditions!r}; run "
+            f"'marlander sweep --preset P --seeds S --out {out} --evaluate {conditions}' (it resumes)."
+        )
+    return seeds, names, np.array([[table[seed, n] for n in names] for seed in seeds])
+
+
+def sweep_profile(out: str | Path, conditions: str = "protocol", points: int = 101, seed: int = 0) -> Profile:
+    """The success-rate performance profile of a sweep over ``conditions`` (default: the paper's Tables I, II)."""
+    _, names, scores = sweep_scores(out, conditions)
+    return profile_with_band(scores, np.linspace(0.0, 1.0, points), names, seed)
+
+
+@dataclass(frozen=True)
 class SeedCurves:
     """One training curve over seeds, on a common step grid."""
 

@@ -175,6 +175,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     curves.add_argument("--force", action="store_true", help="overwrite an existing image")
     curves.set_defaults(func=run_plot_curves)
+    profiles = plot_sub.add_parser(
+        "profiles", help="performance profiles of sweeps over the conditions of the paper's Tables I and II"
+    )
+    profiles.add_argument("sweeps", nargs="+", type=Path, help="sweep folders flown with --evaluate protocol")
+    profiles.add_argument("--labels", nargs="+", help="one label per sweep")
+    profiles.add_argument("--conditions", default="protocol", help="evaluation set (default protocol)")
+    profiles.add_argument(
+        "--out", type=Path, default=Path("performance_profiles.png"), help=f"image file ({', '.join(IMAGE_SUFFIXES)})"
+    )
+    profiles.add_argument("--force", action="store_true", help="overwrite an existing image")
+    profiles.set_defaults(func=run_plot_profiles)
 
     quick = subparsers.add_parser("quickstart", help="train quick-cpu, evaluate it and plot its curves")
     quick.add_argument("--out", type=Path, default=Path("runs/quickstart"), help="run directory")
@@ -327,6 +338,17 @@ def run_plot_curves(args: argparse.Namespace) -> int:
     logs = [progress_path(log) for run in args.runs for log in (sweep_runs(run) or [run])]
     check_output_file(args.out, "--out", args.force, reading=logs, suffixes=IMAGE_SUFFIXES)
     plot_training_curves(args.runs, args.labels, args.curves, out=args.out)
+    print(f"Wrote {args.out}")
+    return 0
+
+
+def run_plot_profiles(args: argparse.Namespace) -> int:
+    from marlander_lite.plotting import plot_performance_profiles
+    from marlander_lite.training.sweep import EVALUATION_FILE
+
+    evaluations = [Path(sweep) / EVALUATION_FILE for sweep in args.sweeps]
+    check_output_file(args.out, "--out", args.force, reading=evaluations, suffixes=IMAGE_SUFFIXES)
+    plot_performance_profiles(args.sweeps, args.labels, args.conditions, out=args.out)
     print(f"Wrote {args.out}")
     return 0
 

@@ -279,6 +279,25 @@ class EvalCondition:
 
 _VICON = {"sensing": "vicon"}
 _FIRMWARE = {"controller": "firmware", "sensing": "vicon"}
+
+
+def protocol_conditions(episodes: int = 200) -> tuple[EvalCondition, ...]:
+    """The ten platform set-ups of the paper's Tables I and II (:data:`marlander_lite.experiments.protocol.
+    CONDITIONS`: floor, UR10, linear and arc tool paths at 0.2-0.5 m/s) on the point mass through ``vicon``
+    sensing. Their names are ``point mass, floor``, ``point mass, elevated``, ``point mass, linear 0.3 m/s``..."""
+    from marlander_lite.experiments.protocol import CONDITIONS
+
+    table = []
+    for cond in CONDITIONS:
+        if cond.group == "static":
+            name, options = cond.kind.removeprefix("static-"), {"platform": cond.kind}
+        else:
+            name = f"{cond.kind.removeprefix('moving-')} {cond.speed:g} m/s"
+            options = {"platform": cond.kind, "platform_speed": cond.speed}
+        table.append(EvalCondition(f"point mass, {name}", "pointmass", {**options, **_VICON}, episodes))
+    return tuple(table)
+
+
 SWEEP_CONDITIONS: dict[str, tuple[EvalCondition, ...]] = {
     "quick": (
         EvalCondition("point mass, floor", "pointmass", {"platform": "static-floor", **_VICON}, 200),
@@ -291,11 +310,14 @@ SWEEP_CONDITIONS: dict[str, tuple[EvalCondition, ...]] = {
         EvalCondition("point mass, floor", "pointmass", {"platform": "static-floor", **_VICON}, 200),
         EvalCondition("point mass, elevated", "pointmass", {"platform": "static-elevated", **_VICON}, 200),
     ),
+    "protocol": protocol_conditions(),
 }
 """Named sets of evaluation conditions. ``quick``: the point mass and PyBullet with the Crazyflie firmware's
 velocity tracker (where the policy will fly), observed through the lab's motion capture (``vicon``: noise and
 20 ms of delay), plus the point mass observed without noise or delay (``true state``, as simulators that do not
-model sensing show it). ``pointmass``: the point mass only (seconds per seed)."""
+model sensing show it). ``pointmass``: the point mass only (seconds per seed). ``protocol``: every platform
+set-up of the paper's Tables I and II on the point mass (:func:`protocol_conditions`, about a minute per seed),
+the conditions of the performance profiles (:func:`marlander_lite.experiments.seed_stats.sweep_profile`)."""
 
 EVALUATION_FIELDS = (
     "seed",
@@ -339,7 +361,7 @@ def evaluate_sweep(
             )
             rows.append({"seed": run_seed, "condition": cond.name, **_summary_fields(summary)})
             report(f"seed {run_seed}, {cond.name}: {summary}")
-            _write_rows(path, rows)
+            write_evaluation(path, rows)
     return path
 
 
@@ -359,7 +381,9 @@ def read_evaluation(path: Path) -> list[dict[str, Any]]:
     return rows
 
 
-def _write_rows(path: Path, rows: list[dict[str, Any]]) -> None:
+def write_evaluation(path: Path, rows: list[dict[str, Any]]) -> None:
+    """Write ``rows`` (:data:`EVALUATION_FIELDS`) sorted by seed and condition, atomically (a partial file is
+    renamed over ``path``), so an interrupted evaluation never leaves a half-written CSV."""
     partial = path.with_suffix(".partial")
     with partial.open("w", newline="") as handle:
         writer = csv.DictWriter(handle, EVALUATION_FIELDS)
