@@ -20,7 +20,7 @@ The pieces, each in its own module:
 See ``docs/lab_guide.md`` for the lab procedure.
 """
 
-from marlander_lite.deploy.config import EXAMPLE_CONFIG, ConfigError, LabConfig, load_lab_config
+from marlander_lite.deploy.config import EXAMPLE_CONFIG, EXAMPLE_CONFIG_8, ConfigError, LabConfig, load_lab_config
 from marlander_lite.deploy.flight_log import FlightLog, read_flight_log
 from marlander_lite.deploy.mission import Mission
 from marlander_lite.deploy.rehearsal import FAULT_KINDS, FaultSpec, RehearsalResult, rehearse
@@ -28,6 +28,7 @@ from marlander_lite.deploy.results import MissionResult
 
 __all__ = [
     "EXAMPLE_CONFIG",
+    "EXAMPLE_CONFIG_8",
     "FAULT_KINDS",
     "ConfigError",
     "FaultSpec",

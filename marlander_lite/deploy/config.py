@@ -17,6 +17,7 @@ Frames and units: the motion-capture world frame (Vicon: z up), metres, seconds,
 from __future__ import annotations
 
 import dataclasses
+import math
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -52,11 +53,13 @@ from marlander_lite.deploy.sections import (
     SimulatorKind,
     current_simulator_name,
 )
-from marlander_lite.policy_file import MLPPolicy, load_policy, read_contract
+from marlander_lite.platforms import PlateGeometry
+from marlander_lite.policy_file import MLPPolicy, PolicyFileError, load_policy, read_contract
 from marlander_lite.task import OBS_PER_DRONE, TaskConfig
 
 __all__ = [
     "EXAMPLE_CONFIG",
+    "EXAMPLE_CONFIG_8",
     "MOCAP_KINDS",
     "RENAMED_SIMULATORS",
     "SIMULATOR_KINDS",
@@ -79,7 +82,9 @@ __all__ = [
 ]
 
 EXAMPLE_CONFIG = Path(__file__).with_name("example_lab.yaml")
-"""The example lab config shipped with the package."""
+"""The example lab config shipped with the package (2 drones, the paper's lab)."""
+EXAMPLE_CONFIG_8 = Path(__file__).with_name("example_lab_8.yaml")
+"""The example lab config for 8 drones on a plate with a 3 x 3 grid of pads (fly it with a shared policy)."""
 
 
 @with_config(SCHEMA_CONFIG)
@@ -107,6 +112,12 @@ class LabConfig:
         uris = [d.uri for d in self.drones]
         check(len(set(names)) == len(names), f"drones: rigid-body names must be unique, got {names}.")
         check(len(set(uris)) == len(uris), f"drones: URIs must be unique, got {uris}.")
+        check(
+            len(self.drones) <= len(self.pads),
+            f"{len(self.drones)} drones but only {len(self.pads)} pads under pads ({', '.join(self.pads)}): every "
+            "drone needs a pad of its own; add pads or remove drones.",
+        )
+        self._check_pads_apart()
         used: dict[str, str] = {}
         for d in self.drones:
             check(
@@ -133,6 +144,21 @@ class LabConfig:
             check(len(sim.start_positions) == len(self.drones), "simulation.start_positions: one (x, y) per drone.")
             for xy in sim.start_positions:
                 check(self.geofence.contains((*xy, low[2]), soft=True), f"start position {xy} is outside the fence.")
+
+    def _check_pads_apart(self) -> None:
+        """Refuse two pads on the same body that overlap: centres closer than the sum of their radii."""
+        pads = list(self.pads.items())
+        for i, (name_a, a) in enumerate(pads):
+            for name_b, b in pads[i + 1 :]:
+                if a.body != b.body:
+                    continue  # on different bodies: where they are depends on how those move
+                gap = math.dist(a.offset, b.offset)
+                check(
+                    gap >= a.radius + b.radius - 1e-9,  # touching pads are allowed, as in PlateGeometry
+                    f"pads {name_a!r} and {name_b!r} on body {a.body!r} overlap: their centres are {gap:.3f} m apart, "
+                    f"less than the sum of their radii ({a.radius + b.radius:g} m); move them apart or make them "
+                    "smaller.",
+                )
 
     @property
     def num_drones(self) -> int:
@@ -164,6 +190,32 @@ class LabConfig:
             observe_platform_velocity=observe_platform_velocity,
         )
 
+    def with_drones(self, num_drones: int, geometry: PlateGeometry | None = None, body: str = "plate") -> LabConfig:
+        """A copy flying ``num_drones`` drones ``cf1 ... cfN``, each on its own pad of ``geometry`` on body ``body``.
+
+        The pads are :meth:`marlander_lite.platforms.PlateGeometry.pad_offsets` of ``geometry`` (default: the
+        simulators' plate, a grid 0.25 m apart), so the simulated lab of a rehearsal has the same plate; the
+        URIs are ``radio://<k>/80/2M/E7E7E7E7<i>``, four drones per radio ``k``; simulated start positions are
+        dropped (placed at random). Everything else is kept. Raises :class:`ConfigError` as a loaded file would.
+        """
+        geometry = geometry or PlateGeometry(pad_radius=self.drone_pads()[0].radius)
+        offsets = geometry.pad_offsets(num_drones)
+        drones = [
+            {"name": f"cf{i + 1}", "uri": f"radio://{i // 4}/80/2M/E7E7E7E7{i + 1:02X}", "pad": f"pad{i + 1}"}
+            for i in range(num_drones)
+        ]
+        pads = {
+            f"pad{i + 1}": {
+                "body": body,
+                "offset": [round(float(v), 9) for v in offsets[i]],
+                "radius": geometry.pad_radius,
+            }
+            for i in range(num_drones)
+        }
+        data = dataclasses.asdict(self) | {"drones": drones, "pads": pads}
+        data["simulation"] = data["simulation"] | {"start_positions": None}
+        return validate(LabConfig, data)
+
     @classmethod
     def from_dict(cls, data: Any) -> LabConfig:
         """Build and validate from a parsed YAML mapping; raises :class:`ConfigError`."""
@@ -175,9 +227,24 @@ class LabConfig:
 
 
 def load_lab_policy(path: str | Path, lab: LabConfig) -> MLPPolicy:
-    """Load a policy file for this lab, refusing one whose contract does not fit (drones, speed, rate)."""
+    """Load a policy file for this lab, refusing one whose contract does not fit.
+
+    Two kinds fly (:mod:`marlander_lite.policy_file`): a centralised policy (the paper's) only for the number of
+    drones it was trained for, a shared policy (``neighbours`` set, ``num_drones: null``) for any number. Both must
+    match the lab's ``limits.policy_max_speed`` and ``rates.policy_hz``, and the file's observation layout (13 or
+    16 numbers per drone) sets whether the platform velocity is observed. Every refusal is a
+    :class:`~marlander_lite.policy_file.PolicyFileError` naming the file.
+    """
     contract = read_contract(path)
-    return load_policy(path, lab.task_config(contract.obs_per_drone > OBS_PER_DRONE))
+    if not contract.is_shared and contract.num_drones != lab.num_drones:
+        raise PolicyFileError(
+            f"{path}: a centralised policy flies exactly the number of drones it was trained for: this one "
+            f"{contract.num_drones}, the lab config lists {lab.num_drones}. Fly a policy trained for "
+            f"{lab.num_drones} drones, or a shared policy (any number of drones, e.g. "
+            "data/policies/shared-quick-local.safetensors)."
+        )
+    task = lab.task_config(contract.obs_per_drone > OBS_PER_DRONE)
+    return load_policy(path, task, shared=contract.is_shared)
 
 
 def load_lab_config(path: str | Path) -> LabConfig:

@@ -373,7 +373,7 @@ class Mission(LandingControl):
         out = self.output
         out.obs = self.runner.observe(est)
         try:
-            out.action, out.velocity = self.runner.act(out.obs)
+            out.action, out.velocity = self.runner.act(out.obs, est.goal)
             if not out.valid:
                 self.event("recovered", "the policy returns valid actions again")
             out.valid = True

@@ -2,7 +2,7 @@
 
 Colours follow the paper's caption: first drone light blue, second orange; first drone's pad
 red, second's blue (a moving pad's trajectory magenta and cyan). Further drones take the next
-colours of matplotlib's cycle.
+colours of matplotlib's cycle (which repeats after ten: in swarms, tell drones apart by the legend order).
 """
 
 from __future__ import annotations
@@ -63,7 +63,8 @@ def plot_trajectories(log: FlightLog, ax: Any = None, title: str | None = None) 
     ax.set_ylabel("y (m)")
     ax.set_zlabel("z (m)")
     ax.set_title(title or "Trajectories (paper Fig. 7)")
-    ax.legend(loc="upper left", fontsize=8)
+    many = len(log.drones) > 4  # a swarm: two columns of small entries keep the legend off the plot
+    ax.legend(loc="upper left", fontsize=6 if many else 8, ncol=2 if many else 1)
     return ax
 
 

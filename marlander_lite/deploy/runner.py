@@ -2,11 +2,21 @@
 
 The observation is built by :func:`marlander_lite.task.observe`, the function both simulators
 use, from the estimated state: position relative to the goal point (pad centre raised by
-``landed_height``), attitude, velocity relative to the pad, angular velocity. The centralised
-policy gets every drone's observation flattened (:func:`marlander_lite.task.flatten_observations`)
-and returns one normalised action per drone, which :func:`marlander_lite.task.action_to_velocity`
-turns into m/s. The lab speed limit then scales each velocity down to at most ``max_speed`` (its
-direction kept): the firmware does not clamp velocity setpoints.
+``landed_height``), attitude, velocity relative to the pad, angular velocity. It is then fed to
+one of two kinds of policy file (:mod:`marlander_lite.policy_file`):
+
+* a **centralised** policy (the paper's) gets every drone's observation flattened
+  (:func:`marlander_lite.task.flatten_observations`, ``(1, 13 N)``) and returns one normalised
+  action per drone, ``(1, 3 N)``; it flies the swarm size it was trained for only;
+* a **shared** policy (beyond the paper, :mod:`marlander_lite.swarm`) gets, for every drone, its
+  own eq. 2 observation plus its ``k`` nearest neighbours within the sensing range, built by
+  :func:`marlander_lite.swarm.observation.shared_observations`, the very function the simulators
+  train it with, and runs as one batch: one forward pass over ``(N, 13 + 7 k)`` inputs gives the
+  ``(N, 3)`` actions, for any N.
+
+Either way :func:`marlander_lite.task.action_to_velocity` turns the actions into m/s, and the lab
+speed limit then scales each velocity down to at most ``max_speed`` (its direction kept): the
+firmware does not clamp velocity setpoints.
 """
 
 from __future__ import annotations
@@ -17,11 +27,16 @@ import numpy as np
 
 from marlander_lite import task
 from marlander_lite.deploy.estimation import SwarmEstimate
+from marlander_lite.swarm.observation import shared_observations
 from marlander_lite.task import TaskConfig
 
 
 class Policy(Protocol):
-    """Anything that maps ``(1, 13 N)`` observations to ``(1, 3 N)`` actions in [-1, 1] (e.g. ``MLPPolicy``)."""
+    """Anything that maps observations to actions in [-1, 1] (e.g. ``MLPPolicy``).
+
+    A centralised policy maps ``(1, 13 N)`` to ``(1, 3 N)``; a shared one (its ``contract.neighbours``
+    set) maps ``(N, 13 + 7 k)`` to ``(N, 3)``.
+    """
 
     def act(self, obs: np.ndarray) -> np.ndarray: ...
 
@@ -40,24 +55,56 @@ class PolicyRunner:
     """Runs a policy on estimates.
 
     Args:
-        policy: the exported policy (``marlander_lite.policy_file.load_policy``).
+        policy: the exported policy (``marlander_lite.deploy.config.load_lab_policy``): centralised,
+            or shared when its ``contract.neighbours`` is set.
         task_config: the MDP constants the policy was trained with (``num_drones``, ``max_speed``).
         max_speed: lab speed limit (m/s).
     """
 
     def __init__(self, policy: Policy, task_config: TaskConfig, max_speed: float) -> None:
         self.policy, self.task, self.max_speed = policy, task_config, max_speed
+        contract = getattr(policy, "contract", None)
+        self.neighbours: int | None = None if contract is None else contract.neighbours
+        """``k`` of a shared policy (its input holds the k nearest neighbours); None for a centralised one."""
+        self.radius: float | None = None if contract is None else contract.neighbour_radius
+        """Sensing range of a shared policy (m); None: the k nearest at any distance."""
+
+    @property
+    def shared(self) -> bool:
+        """Whether the policy is shared (one network per drone, any N) rather than centralised."""
+        return self.neighbours is not None
 
     def observe(self, est: SwarmEstimate) -> np.ndarray:
         """Eq. 2 for every drone, ``(N, 13)`` (``(N, 16)`` when the policy also observes the platform velocity)."""
         pad_vel = est.pad_vel if self.task.observe_platform_velocity else None
         return task.observe(est.pos - est.goal, est.quat, est.vel - est.pad_vel, est.ang_vel, pad_vel)
 
-    def act(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(action (3N,) in [-1, 1], clamped velocity (N, 3) m/s)``; raises :class:`InvalidAction`."""
-        flat = task.flatten_observations(obs[None])
+    def policy_input(self, obs: np.ndarray, goals: np.ndarray | None = None) -> np.ndarray:
+        """What the network reads: ``(1, 13 N)`` for a centralised policy, ``(N, 13 + 7 k)`` for a shared one.
+
+        Args:
+            obs: eq. 2 for every drone ``(N, 13)`` (:meth:`observe`).
+            goals: every drone's goal point ``(N, 3)`` m (``SwarmEstimate.goal``); a shared policy needs it to
+                place its neighbours (``x_j - x_i = (p_j + g_j) - (p_i + g_i)``), a centralised one ignores it.
+        """
+        if not self.shared:
+            return task.flatten_observations(obs[None])
+        if goals is None:
+            raise ValueError("A shared policy needs the drones' goal points to sense its neighbours; pass goals.")
+        # shared_observations takes pad offsets relative to the plate and uses only their differences: the goals
+        # relative to their mean are those offsets (plus the common lift) for pads on one plate, and any layout.
+        goals = np.asarray(goals, dtype=np.float64)
+        return shared_observations(obs, goals - goals.mean(axis=0), int(self.neighbours), self.radius)  # type: ignore[arg-type]
+
+    def act(self, obs: np.ndarray, goals: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """``(action (3N,) in [-1, 1], clamped velocity (N, 3) m/s)``; raises :class:`InvalidAction`.
+
+        ``goals`` ``(N, 3)`` is needed by a shared policy (see :meth:`policy_input`). Whatever the policy, the
+        action is checked the same way: ``3 N`` numbers, finite, within [-1, 1].
+        """
+        x = self.policy_input(obs, goals)
         try:
-            action = np.asarray(self.policy.act(flat), dtype=float).reshape(-1)
+            action = np.asarray(self.policy.act(x), dtype=float).reshape(-1)  # one call: the whole swarm at once
         except (ValueError, FloatingPointError) as error:
             raise InvalidAction(f"the policy failed: {error}") from None
         n3 = self.task.act_dim

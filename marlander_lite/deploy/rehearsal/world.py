@@ -29,7 +29,7 @@ from marlander_lite import task
 from marlander_lite.deploy.config import ConfigError, LabConfig, current_simulator_name
 from marlander_lite.deploy.rehearsal.virtual_crazyflie import VirtualCfFactory
 from marlander_lite.deploy.rehearsal.virtual_firmware import VirtualFirmware
-from marlander_lite.platforms import PlateGeometry, PlatformConfig
+from marlander_lite.platforms import PAD_LAYOUTS, PlateGeometry, PlatformConfig
 from marlander_lite.rotations import IDENTITY_QUAT
 from marlander_lite.simulators import simulator_entry
 from marlander_lite.task import TaskConfig
@@ -59,9 +59,24 @@ def world_task(lab: LabConfig) -> TaskConfig:
 
 
 def world_platform(lab: LabConfig) -> PlatformConfig:
-    """The simulated plate: the lab's platform motion and pad radius."""
+    """The simulated plate: the lab's platform motion, pad radius and pad layout.
+
+    The layout is the first of :data:`~marlander_lite.platforms.PAD_LAYOUTS` (the default grid 0.25 m apart
+    first, then each layout at the config's smallest pad spacing) whose pad offsets are the config's (within
+    1 mm): a config written from ``PlateGeometry(...).pad_offsets(N)`` (``LabConfig.with_drones``) rehearses on
+    that very plate. Otherwise the default grid, which :class:`SimulatedWorld` then refuses, saying its offsets.
+    """
     sim = lab.simulation
-    geometry = PlateGeometry(pad_radius=lab.drone_pads()[0].radius)
+    pads = lab.drone_pads()
+    radius = pads[0].radius
+    candidates = [PlateGeometry(pad_radius=radius)]
+    offsets = np.array([p.offset for p in pads], dtype=float)
+    if len(pads) > 1 and len({p.body for p in pads}) == 1:
+        gaps = np.linalg.norm(offsets[:, None] - offsets[None], axis=-1)[np.triu_indices(len(pads), 1)]
+        spacing = round(float(gaps.min()), 6)  # offsets in a file are rounded
+        if spacing >= 2 * radius:
+            candidates += [PlateGeometry(pad_radius=radius, pad_spacing=spacing, layout=k) for k in PAD_LAYOUTS]
+    geometry = next((g for g in candidates if np.abs(g.pad_offsets(len(pads)) - offsets).max() <= 1e-3), candidates[0])
     return PlatformConfig(kind=sim.platform, speed=sim.platform_speed, geometry=geometry)
 
 
