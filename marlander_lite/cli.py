@@ -24,6 +24,7 @@ COMMAND_MODULES = (
     "marlander_lite.training.sweep_command",
     "marlander_lite.experiments.commands",
     "marlander_lite.experiments.transfer_command",
+    "marlander_lite.swarm.commands",
     "marlander_lite.deploy.commands",
 )
 

@@ -302,6 +302,24 @@ def test_evaluation_vs_n_counts_trials_and_intervals(lander_file):
         evaluate_cell("centralised", 3, trials=2, policy_path=ROOT / "data/policies/quick-cpu.safetensors")
 
 
+def test_swarm_evaluate_command_writes_tables_and_never_overwrites_them(lander_file, tmp_path, capsys):
+    from marlander_lite.cli import main
+
+    args = ["swarm", "evaluate", "--shared", str(lander_file), "--sizes", "1", "--trials", "4", "--num-envs", "2"]
+    assert main([*args, "--out", str(tmp_path), "--stem", "lone"]) == 0
+    table = (tmp_path / "lone.md").read_text()
+    assert "| shared | static-floor | 1 | 4 |" in table and "marlander swarm evaluate" in table
+    before = (tmp_path / "lone.csv").read_bytes()
+    with pytest.raises(SystemExit):  # one-line error, before any trial is flown
+        main([*args, "--seed", "5", "--out", str(tmp_path), "--stem", "lone"])
+    assert "already exist; pass --force" in capsys.readouterr().err
+    assert (tmp_path / "lone.csv").read_bytes() == before
+    assert main([*args, "--seed", "5", "--out", str(tmp_path), "--stem", "lone", "--force"]) == 0
+    with pytest.raises(SystemExit):
+        main(["swarm", "evaluate", "--out", str(tmp_path)])
+    assert "Nothing to fly" in capsys.readouterr().err
+
+
 # ---------------------------------------------------------------------------- learning
 
 

@@ -24,7 +24,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
@@ -284,10 +283,28 @@ def markdown_table(rows: Sequence[ScalingRow]) -> str:
     return "\n".join([head, *(_cell_text(r) for r in rows)])
 
 
-def write_results(rows: Sequence[ScalingRow], out: str | Path, stem: str = "scaling", note: str = "") -> Path:
-    """Write ``{stem}.csv``, ``{stem}.json`` and ``{stem}.md`` into ``out``; returns the markdown path."""
+RESULT_SUFFIXES = (".csv", ".json", ".md")
+
+
+def check_results_free(out: str | Path, stem: str, force: bool = False) -> None:
+    """Refuse (``FileExistsError``) when ``out`` already holds ``{stem}.csv/.json/.md`` and ``force`` is False:
+    results someone kept are not overwritten by accident. Called before any trial is flown."""
+    taken = [Path(out) / f"{stem}{suffix}" for suffix in RESULT_SUFFIXES if (Path(out) / f"{stem}{suffix}").exists()]
+    if taken and not force:
+        names = ", ".join(str(path) for path in taken)
+        raise FileExistsError(f"{names} already exist; pass --force to overwrite, or choose another --out or --stem.")
+
+
+def write_results(
+    rows: Sequence[ScalingRow], out: str | Path, stem: str = "scaling", note: str = "", force: bool = False
+) -> Path:
+    """Write ``{stem}.csv``, ``{stem}.json`` and ``{stem}.md`` into ``out``; returns the markdown path.
+
+    Existing files of that stem are only replaced with ``force`` (:func:`check_results_free`).
+    """
     import csv
 
+    check_results_free(out, stem, force)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     flat = [r.flat() for r in rows]
@@ -301,8 +318,8 @@ def write_results(rows: Sequence[ScalingRow], out: str | Path, stem: str = "scal
     return md
 
 
-def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description="Evaluate swarm landing versus the number of drones.")
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options of ``marlander swarm evaluate`` (and ``python -m marlander_lite.swarm.evaluation``)."""
     parser.add_argument("--shared", help="shared policy file")
     parser.add_argument("--centralised", help="centralised policy file (flown at its own N only)")
     parser.add_argument("--baseline", action="store_true", help="also fly PID + APF at every N")
@@ -318,7 +335,29 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--platform", default="static-floor", help="platform kind (marlander_lite.platforms)")
     parser.add_argument("--speeds", type=float, nargs="+", default=[None], help="tool speeds of a moving platform")
     parser.add_argument("--inclinations", type=float, nargs="+", default=[0.0], help="plate tilts (degrees)")
-    args = parser.parse_args(argv)
+    parser.add_argument("--force", action="store_true", help="overwrite STEM.csv/.json/.md already in --out")
+
+
+def command_line(args: argparse.Namespace, program: str = "marlander swarm evaluate") -> str:
+    """The command that flies ``args`` again: every option of :func:`add_arguments` that is set, with its value."""
+    parser = argparse.ArgumentParser(add_help=False)
+    add_arguments(parser)
+    parts = [program]
+    for dest in (action.dest for action in parser._actions if action.dest != "force"):
+        value = getattr(args, dest)
+        if value is None or value is False or value == [None]:
+            continue
+        flag = "--" + dest.replace("_", "-")
+        values = value if isinstance(value, list) else [] if value is True else [value]
+        parts += [flag, *(f"{v:g}" if isinstance(v, float) else str(v) for v in values)]
+    return " ".join(parts)
+
+
+def run(args: argparse.Namespace, program: str = "marlander swarm evaluate") -> Path:
+    """Fly every requested cell and write the tables (their note says how to fly them again); returns the .md."""
+    if not (args.shared or args.centralised or args.baseline):
+        raise ValueError("Nothing to fly: give --shared FILE, --centralised FILE and/or --baseline.")
+    check_results_free(args.out, args.stem, args.force)
     options = {"controller": "firmware"} if args.firmware else {}
     platforms = [
         PlatformConfig(kind=args.platform, speed=speed, geometry=PlateGeometry(inclination_deg=tilt))
@@ -344,13 +383,20 @@ def main(argv: list[str] | None = None) -> None:
         )  # fmt: skip
         print(_cell_text(row), f"({row.seconds:.0f} s)", flush=True)
         rows.append(row)
-    command = " ".join(sys.argv[1:] if argv is None else argv)
     note = (
         f"{args.simulator}{' (firmware tracker)' if args.firmware else ''}, Vicon sensing, the paper's random starts, "
-        f"{args.trials} trials per cell, seed {args.seed}, 30 s limit: "
-        f"`python -m marlander_lite.swarm.evaluation {command}`."
+        f"{args.trials} trials per cell, seed {args.seed}, 30 s limit: `{command_line(args, program)}`."
     )
-    print(write_results(rows, args.out, args.stem, note))
+    md = write_results(rows, args.out, args.stem, note, force=args.force)
+    print(md)
+    return md
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description="Evaluate swarm landing versus the number of drones.")
+    add_arguments(parser)
+    args = parser.parse_args(argv)
+    run(args, "python -m marlander_lite.swarm.evaluation")
 
 
 if __name__ == "__main__":

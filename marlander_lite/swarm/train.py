@@ -205,14 +205,17 @@ def train_shared(config: SharedTrainConfig, out_dir: str | Path, *, preset: str 
     return files
 
 
-def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description="Train a shared (decentralised, any-N) landing policy with PPO.")
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options of ``marlander swarm train`` (and ``python -m marlander_lite.swarm.train``)."""
     parser.add_argument("--preset", default="shared-quick", choices=sorted(SHARED_PRESETS))
     parser.add_argument("--out", required=True, help="new run directory")
     parser.add_argument("--steps", type=int, default=None, help="total drone steps (default: the preset's)")
     parser.add_argument("--seed", type=int, default=None)
     parser.add_argument("--init-from", default=None, help="a finished shared run to continue training from")
-    args = parser.parse_args(argv)
+
+
+def run(args: argparse.Namespace) -> RunFiles:
+    """Train the preset with the given changes into a new run directory."""
     config = SHARED_PRESETS[args.preset]
     changes = {
         k: v
@@ -221,6 +224,13 @@ def main(argv: list[str] | None = None) -> None:
     }
     files = train_shared(config.replace(**changes), args.out, preset=args.preset)
     print(f"Trained {files.root}; policy: {files.policy}")
+    return files
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description="Train a shared (decentralised, any-N) landing policy with PPO.")
+    add_arguments(parser)
+    run(parser.parse_args(argv))
 
 
 if __name__ == "__main__":
