@@ -263,11 +263,18 @@ def markdown_table(table: Sequence[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
-def summarise_sweep(out: str | Path) -> str:
-    """The Markdown summary of a sweep folder's ``evaluation.csv``."""
-    from marlander_lite.training.sweep import EVALUATION_FILE, read_evaluation
+def summarise_sweep(out: str | Path, conditions: str | None = None) -> str:
+    """The Markdown summary of a sweep folder's ``evaluation.csv``: every row, or only those of the evaluation set
+    ``conditions`` (a key of :data:`marlander_lite.training.sweep.SWEEP_CONDITIONS`), in that set's order."""
+    from marlander_lite.training.sweep import EVALUATION_FILE, SWEEP_CONDITIONS, read_evaluation
 
     path = Path(out) / EVALUATION_FILE
     if not path.is_file():
         raise FileNotFoundError(f"{out} has no {EVALUATION_FILE}; run 'marlander sweep' with --evaluate first.")
-    return markdown_table(summary_rows(read_evaluation(path)))
+    rows = read_evaluation(path)
+    if conditions is not None:
+        if conditions not in SWEEP_CONDITIONS:
+            raise ValueError(f"Unknown evaluation set {conditions!r}; allowed: {', '.join(SWEEP_CONDITIONS)}.")
+        order = {c.name: i for i, c in enumerate(SWEEP_CONDITIONS[conditions])}
+        rows = sorted((r for r in rows if r["condition"] in order), key=lambda r: (order[r["condition"]], r["seed"]))
+    return markdown_table(summary_rows(rows))

@@ -89,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
             config, seeds, out, preset=args.preset, backend=args.backend, workers=args.workers, address=args.address
         )
         if args.evaluate != "none" and evaluate_sweep(out, args.evaluate).is_file():
-            print(summarise_sweep(out))
+            print(summarise_sweep(out, args.evaluate))
     finally:
         release_lock(lock)
     unfinished = [o for o in outcomes if o.status != "done"]
