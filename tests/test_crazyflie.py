@@ -249,6 +249,40 @@ def test_a_drone_sunk_into_its_pad_touches_its_pad_not_the_plate_under_it(sink):
     assert sim.contact[0].tolist() == [CONTACT_OWN_PAD, CONTACT_OTHER]
 
 
+def test_an_inclined_plate_in_pybullet_is_tilted_where_the_point_mass_says():
+    """Beyond the paper: a plate tilted by 15 degrees about x (its +y edge up). A drone sinking onto its pad lands
+    there; one sinking 0.2 m up the slope from the plate centre meets the plate sin(15 deg) x 0.2 m = 5.2 cm higher
+    than the plate centre, and crashes (it is off its pad)."""
+    from marlander_lite.platforms import PlateGeometry
+    from marlander_lite.task import CONTACT_OWN_PAD
+
+    geometry = PlateGeometry(inclination_deg=15.0)
+    sim = CrazyflieSwarm(
+        TaskConfig(num_drones=2),
+        PlatformConfig(kind="static-floor", geometry=geometry),
+        physics=PhysicsConfig.preset("bare"),
+    )
+    episodes = LandingEpisodes(sim, seed=0)
+    episodes.reset()
+    plate = np.array(sim._plate_pos)
+    up_slope = plate + 0.2 * geometry.rotation()[:, 1]
+    assert up_slope[2] - plate[2] == pytest.approx(0.2 * np.sin(np.radians(15.0)))
+    sim.place(0, np.vstack([sim.pad_pos[0, 0] + [0.0, 0.0, 0.08], up_slope + [0.0, 0.0, 0.08]]))
+    touched = {}
+    for _ in range(60):
+        outcome = episodes.step(np.array([[[0.0, 0.0, -0.1], [0.0, 0.0, -0.1]]]))  # 0.3 m/s down
+        for i in range(2):
+            if (outcome.landed_now[0, i] or outcome.crashed[0, i]) and i not in touched:
+                touched[i] = (sim.pos[0, i].copy(), int(sim.contact[0, i]), float(outcome.landing_error[0, i]))
+        if len(touched) == 2:
+            break
+    (pos0, contact0, error0), (pos1, contact1, _) = touched[0], touched[1]
+    assert contact0 == CONTACT_OWN_PAD and outcome.landed[0, 0] and error0 < 0.02
+    assert contact1 == CONTACT_OTHER and not outcome.landed[0, 1]
+    # It touches the tilted face above that point (the Crazyflie's lowest corner is 1-3 cm below its centre).
+    assert 0.0 < pos1[2] - up_slope[2] < 0.03
+
+
 def go_to_pad(obs, num_drones, gain=2.0, speed=1.0, below=0.15):
     """A hand-written controller: fly to a cone above the pad, then descend along it at about 0.3 m/s."""
     p = obs.reshape(num_drones, 13)[:, 0:3].copy()

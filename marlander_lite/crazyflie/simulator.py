@@ -146,6 +146,8 @@ class CrazyflieSwarm:
         self.vel, self.ang_vel = self._kinematics[..., 7:10], self._kinematics[..., 10:13]
         self.pad_pos, self.pad_vel = np.zeros((1, n, 3)), np.zeros((1, n, 3))
         self._pad_radius_sq = self.platform.geometry.pad_radius**2
+        inclined = self.platform.geometry.inclination_deg != 0
+        self._pad_normal = tuple(self.platform.geometry.normal().tolist()) if inclined else None
         self.contact = np.zeros((1, n), dtype=np.int8)
         self.landed = np.zeros((1, n), dtype=bool)
         self.motors_stopped = np.zeros((1, n), dtype=bool)
@@ -391,9 +393,15 @@ class CrazyflieSwarm:
         self._touching = touching
 
     def _under_own_pad(self, drone: int, point: tuple[float, float, float]) -> bool:
-        """Whether a contact point on the plate lies within the pad radius of drone ``drone``'s pad centre."""
+        """Whether a contact point on the plate lies within the pad radius of drone ``drone``'s pad centre,
+        measured within the pad plane (horizontally on a level plate)."""
         dx, dy = point[0] - self.pad_pos[0, drone, 0], point[1] - self.pad_pos[0, drone, 1]
-        return dx * dx + dy * dy <= self._pad_radius_sq
+        if self._pad_normal is None:
+            return dx * dx + dy * dy <= self._pad_radius_sq
+        dz = point[2] - self.pad_pos[0, drone, 2]
+        nx, ny, nz = self._pad_normal
+        along = dx * nx + dy * ny + dz * nz
+        return dx * dx + dy * dy + dz * dz - along * along <= self._pad_radius_sq
 
     def _read_state(self) -> None:
         """Read every drone's pose and velocity from PyBullet (two calls per drone), as tuples."""

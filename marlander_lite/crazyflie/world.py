@@ -21,6 +21,7 @@ through a thin slab between two collision checks.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import sys
 from importlib import resources
@@ -28,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 import pybullet as p
+from scipy.spatial.transform import Rotation
 
 from marlander_lite.crazyflie.params import GRAVITY, CF2XParams, PhysicsConfig
 from marlander_lite.platforms import PlatformConfig
@@ -126,6 +128,13 @@ class World:
     def _build_platform(self, num_drones: int, platform: PlatformConfig) -> tuple[int, list[int]]:
         cid = self.client
         geometry = platform.geometry
+        # Beyond the paper: an inclined plate is the level one turned by geometry.rotation() about its top-face
+        # centre. The links are laid out level, in the plate's own frame; the base orientation tilts them all
+        # (the UR10 column too: the arm holds the plate at that angle).
+        self.plate_orientation = tuple(Rotation.from_matrix(geometry.rotation()).as_quat().tolist())
+        """The plate's orientation, PyBullet's (x, y, z, w); identity unless the plate is inclined."""
+        if geometry.inclination_deg:
+            geometry = dataclasses.replace(geometry, inclination_deg=0.0)
         hx, hy = geometry.half_extents(num_drones)
         plate_col = p.createCollisionShape(
             p.GEOM_BOX,
@@ -186,6 +195,7 @@ class World:
             baseCollisionShapeIndex=plate_col,
             baseVisualShapeIndex=plate_vis,
             basePosition=[0.0, 0.0, geometry.plate_thickness],
+            baseOrientation=list(self.plate_orientation),
             linkMasses=[0.0] * count,
             linkCollisionShapeIndices=cols,
             linkVisualShapeIndices=viss,
@@ -228,8 +238,8 @@ class World:
             p.resetBaseVelocity(self.drones[i], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0], physicsClientId=cid)
 
     def move_platform(self, plate_pos: list[float]) -> None:
-        """Set the plate's top-face centre to ``plate_pos`` (m), level."""
-        p.resetBasePositionAndOrientation(self.platform, plate_pos, IDENTITY, physicsClientId=self.client)
+        """Set the plate's top-face centre to ``plate_pos`` (m), level or at its inclination."""
+        p.resetBasePositionAndOrientation(self.platform, plate_pos, self.plate_orientation, physicsClientId=self.client)
 
     def render(self, width: int, height: int, target: tuple[float, float, float], distance: float) -> np.ndarray:
         """An RGB image ``(height, width, 3)`` uint8 from a camera looking at ``target`` (m) from ``distance``."""
