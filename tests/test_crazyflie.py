@@ -267,7 +267,7 @@ def test_an_inclined_plate_in_pybullet_is_tilted_where_the_point_mass_says():
     plate = np.array(sim._plate_pos)
     up_slope = plate + 0.2 * geometry.rotation()[:, 1]
     assert up_slope[2] - plate[2] == pytest.approx(0.2 * np.sin(np.radians(15.0)))
-    sim.place(0, np.vstack([sim.pad_pos[0, 0] + [0.0, 0.0, 0.08], up_slope + [0.0, 0.0, 0.08]]))
+    sim.place(0, np.vstack([sim.pad_pos[0, 0] + [0.0, 0.0, 0.08], up_slope + np.array([0.0, 0.0, 0.08])]))
     touched = {}
     for _ in range(60):
         outcome = episodes.step(np.array([[[0.0, 0.0, -0.1], [0.0, 0.0, -0.1]]]))  # 0.3 m/s down
@@ -276,7 +276,7 @@ def test_an_inclined_plate_in_pybullet_is_tilted_where_the_point_mass_says():
                 touched[i] = (sim.pos[0, i].copy(), int(sim.contact[0, i]), float(outcome.landing_error[0, i]))
         if len(touched) == 2:
             break
-    (pos0, contact0, error0), (pos1, contact1, _) = touched[0], touched[1]
+    (_, contact0, error0), (pos1, contact1, _) = touched[0], touched[1]
     assert contact0 == CONTACT_OWN_PAD and outcome.landed[0, 0] and error0 < 0.02
     assert contact1 == CONTACT_OTHER and not outcome.landed[0, 1]
     # It touches the tilted face above that point (the Crazyflie's lowest corner is 1-3 cm below its centre).

@@ -325,6 +325,18 @@ def check_08(shown: Shown) -> None:
     assert shown.figures == 2  # the step responses, the transfer bars
 
 
+def check_09(shown: Shown) -> None:
+    # A drone sinking straight down onto a 15-degree pad: its in-plane offset, worked by hand in the cell.
+    [(error, expected)] = shown.numbers(r"landing error (\S+) cm \(landed_height x tan 15 deg = (\S+) cm\)")
+    assert close(error, expected, 0.001) and close(expected, 1.25 * math.tan(math.radians(15.0)), 0.001)
+    assert "landed [True, True]" in shown.text
+    # The full-budget tables are shown, each with the command that flew it.
+    shown_tables = "\n".join(shown.markdown)
+    for stem in ("inclined", "fast"):
+        assert f"**{stem}**" in shown_tables
+    assert "static-floor tilt 15 deg" in shown_tables
+
+
 VALUE_CHECKS: dict[str, Callable[[Shown], None]] = {
     "00_overview.ipynb": check_00,
     "01_mdp_and_pointmass.ipynb": check_01,
@@ -334,6 +346,7 @@ VALUE_CHECKS: dict[str, Callable[[Shown], None]] = {
     "05_moving_platform.ipynb": check_05,
     "06_baselines.ipynb": check_06,
     "08_transfer.ipynb": check_08,
+    "09_scaling.ipynb": check_09,
 }
 """Values each notebook must show, against data it did not compute (notebook 07 checks only EXPECTED_TEXT)."""
 
