@@ -52,18 +52,6 @@ class Simulator(Protocol):
     platform: PlatformConfig
     num_envs: int
 
-    def pad_offset(self, rel_pos: np.ndarray) -> np.ndarray:
-        """Distance of each drone from its pad centre within the pad plane, ``(num_envs, N)`` m.
-
-        This is what touchdown compares with the pad radius and what a landing records as its error. On a
-        level pad it is the horizontal distance; on an inclined plate it is measured in the pad frame
-        (:func:`marlander_lite.task.pad_frame_errors`), so a drone that sinks straight down onto a pad tilted by
-        ``theta`` lands ``landed_height * tan(theta)`` off its centre.
-        """
-        if not self._inclined:
-            return np.sqrt(rel_pos[..., 0] ** 2 + rel_pos[..., 1] ** 2)
-        return task.pad_frame_errors(rel_pos, self.pad_normal)[1]
-
     def reset(self, env_ids: np.ndarray, rng: np.random.Generator) -> None:
         """Place platform and drones of ``env_ids`` at random (``task.sample_spawn_positions``), at rest."""
 
