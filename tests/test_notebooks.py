@@ -231,6 +231,13 @@ def check_02(shown: Shown) -> None:
     assert shown.figures == 6
 
 
+def seed_stats_iqm(values: list[float]) -> float:
+    """The interquartile mean by hand: sort, drop the lowest and highest int(n / 4) runs, average the rest."""
+    cut = len(values) // 4
+    middle = sorted(values)[cut : len(values) - cut]
+    return sum(middle) / len(middle)
+
+
 def check_03(shown: Shown) -> None:
     # Fig. 3 / Sec. III-D: both drones' 13 observations in, 512-512-256-128 ReLU layers.
     assert re.search(r"^paper\s+drones 2, inputs 26, layers \(512, 512, 256, 128\)", shown.text, re.MULTILINE)
@@ -250,7 +257,10 @@ def check_03(shown: Shown) -> None:
     live = [r for r in markdown_rows(shown.text[shown.text.index("| condition | seeds |") :]) if r["seeds"] == "2"]
     assert [r["condition"] for r in live] == ["point mass, elevated", "point mass, floor"]
     # The shipped sweep: every seed's printed success equals its evaluation.csv row, and the table's mean is theirs.
-    rows = read_csv(ROOT / "data/sweeps/quick-cpu/evaluation.csv")
+    from marlander_lite.training.sweep import SWEEP_CONDITIONS
+
+    quick = {c.name for c in SWEEP_CONDITIONS["quick"]}
+    rows = [r for r in read_csv(ROOT / "data/sweeps/quick-cpu/evaluation.csv") if r["condition"] in quick]
     printed = shown.numbers(r"^seed (\d+)\s+(?:point mass|firmware), [\w ,]+?\s+success\s+(\S+) %")
     assert sorted(printed) == sorted((float(r["seed"]), round(100 * float(r["success_rate"]), 1)) for r in rows)
     shipped_table = shown.text[shown.text.rindex("| condition | seeds |") :]
@@ -258,7 +268,14 @@ def check_03(shown: Shown) -> None:
         chosen = [float(r["success_rate"]) for r in rows if r["condition"] == row["condition"]]
         if chosen and "success mean" in row:
             assert close(first_number(row["success mean"]), 100 * sum(chosen) / len(chosen), 0.051), row
-    assert shown.figures == 3  # Fig. 5/6 from the shipped runs, the sweep's curves, the performance profile
+    # The performance profile's per-condition IQM of every shipped sweep equals the IQM of its evaluation.csv rows.
+    for sweep in ("quick-cpu", "paper"):
+        flown = read_csv(ROOT / f"data/sweeps/{sweep}/evaluation.csv")
+        for condition in SWEEP_CONDITIONS["protocol"]:
+            scores = [float(r["success_rate"]) for r in flown if r["condition"] == condition.name]
+            [(value,)] = shown.numbers(rf"^\s+{sweep}\s+{re.escape(condition.name)}\s+IQM success\s+(\S+) %")
+            assert len(scores) >= 3 and close(value, 100 * seed_stats_iqm(scores), 0.051), (sweep, condition.name)
+    assert shown.figures == 3  # Fig. 5/6 from the shipped runs, the sweep's curves, the performance profiles
 
 
 def check_04(shown: Shown) -> None:
