@@ -68,7 +68,7 @@ def shipped_artifacts(data: str | Path = "data") -> list[ShippedArtifact]:
             run, problem = None, f"no run folder data/runs/{name} with its config.json"
         elif read_contract(policy).is_shared:
             preset = json.loads((run / "config.json").read_text()).get("preset")
-            problem = "a shared (any-N) policy: retrain it with python -m marlander_lite.swarm.train"
+            problem = "a shared (any-N) policy: retrain it with marlander swarm train"
         else:
             record = json.loads((run / "config.json").read_text())
             preset, config = record.get("preset"), dict(record["train"])
