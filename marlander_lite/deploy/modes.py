@@ -19,7 +19,14 @@ from enum import Enum
 from typing import TypeVar
 
 
-class MissionMode(str, Enum):
+class _Named(str, Enum):
+    """A string enum that prints as its value (the word the flight log and the docs use)."""
+
+    def __str__(self) -> str:
+        return self.value
+
+
+class MissionMode(_Named):
     """What the whole mission does this tick (``Mission.mode``; the ``mode`` of a flight-log tick)."""
 
     PREFLIGHT = "preflight"
@@ -33,11 +40,8 @@ class MissionMode(str, Enum):
     DONE = "done"
     """Every drone down or lost, the check given up, or stopped: the loop ends."""
 
-    def __str__(self) -> str:
-        return self.value
 
-
-class DronePhase(str, Enum):
+class DronePhase(_Named):
     """What one drone is doing (``Mission.phase[i]``; the ``phase`` list of a flight-log tick)."""
 
     IDLE = "idle"
@@ -54,9 +58,6 @@ class DronePhase(str, Enum):
     """Motors off (landed, touched something, or stopped)."""
     LOST = "lost"
     """Its radio link is lost: nothing more is sent to it (its firmware lands it blind, then cuts the motors)."""
-
-    def __str__(self) -> str:
-        return self.value
 
 
 FLYING: frozenset[DronePhase] = frozenset({DronePhase.TAKEOFF, DronePhase.POLICY, DronePhase.HOVER, DronePhase.LANDING})
