@@ -41,7 +41,7 @@ EXPECTED_TEXT = {
     "06_baselines.ipynb": ["budget: small"],
     "07_deployment_rehearsal.ipynb": ["budget: small", "fault none: armed=True, on pad=[True, True]"],
     "08_transfer.ipynb": ["budget: small", "### quick-cpu", "| floor | "],
-    "09_scaling.ipynb": ["budget: small", "| shared | static-floor | 16 |"],
+    "09_scaling.ipynb": ["budget: small", "| shared | static-floor | 16 |", "| shared-filter | static-floor | 16 |"],
 }
 
 
@@ -352,6 +352,13 @@ def check_09(shown: Shown) -> None:
     for stem in ("inclined", "fast"):
         assert f"**{stem}**" in shown_tables
     assert "static-floor tilt 15 deg" in shown_tables
+    assert "**crazyflie_firmware_filter**" in shown_tables
+    # The safety filter's head-on pair: each closes at gamma/2 (d - d_s) = 2 (0.5 - 0.19) m/s at most, and the
+    # pair flown with velocity = command stays at the 0.19 m safety distance (collision: 0.15 m).
+    [(limit,)] = shown.numbers(r"each may close at most gamma/2 \(d - d_s\) = (\S+) m/s")
+    assert close(limit, 0.62, 0.001)
+    [(closest,)] = shown.numbers(r"closest approach (\S+) m")
+    assert closest >= 0.185
 
 
 VALUE_CHECKS: dict[str, Callable[[Shown], None]] = {

@@ -11,6 +11,7 @@ rates and cluster-bootstrap intervals for the landing error
 ``centralised``  the paper's centralised policy, only at the N it was trained for;
 ``shared-apf``   the shared policy plus the APF repulsion of the baseline (as MorphoLander adds it to a
                  single-agent policy, Sec. IV-E), any N;
+``shared-filter`` the shared policy through the safety filter (:mod:`marlander_lite.swarm.safety_filter`), any N;
 ``baseline``     PID + APF (:class:`~marlander_lite.experiments.controllers.PIDAPFController`, tuned gains), any N.
 
 Command line (writes ``scaling.csv``, ``scaling.json`` and ``scaling.md`` into ``--out``)::
@@ -43,9 +44,10 @@ from marlander_lite.pointmass.simulator import PointMassSwarm
 from marlander_lite.policy_file import load_policy, read_contract
 from marlander_lite.sensing import SensingConfig
 from marlander_lite.swarm.policy import SharedPolicy
+from marlander_lite.swarm.safety_filter import with_safety_filter
 from marlander_lite.task import OBS_PER_DRONE, TaskConfig
 
-SCALING_CONTROLLERS = ("shared", "shared-apf", "centralised", "baseline")
+SCALING_CONTROLLERS = ("shared", "shared-apf", "shared-filter", "centralised", "baseline")
 BatchAct = Callable[[np.ndarray], np.ndarray]
 """Centralised observations of every env ``(E, 13 N)`` -> actions ``(E, 3 N)``."""
 
@@ -184,6 +186,12 @@ def actor_factory(
             raise ValueError("The shared-apf controller needs its policy file (policy_path).")
         shared = SharedPolicy(policy_path, task, platform.geometry)
         return lambda _ids: _with_repulsion(shared, task, platform)
+    if controller == "shared-filter":
+        if policy_path is None:
+            raise ValueError("The shared-filter controller needs its policy file (policy_path).")
+        guarded = SharedPolicy(policy_path, task, platform.geometry)
+        offsets = platform.geometry.pad_offsets(task.num_drones)
+        return lambda _ids: with_safety_filter(guarded.act, task.num_drones, offsets, task.max_speed)
     if controller == "centralised":
         if policy_path is None:
             raise ValueError("The centralised controller needs its policy file (policy_path).")
@@ -324,6 +332,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--centralised", help="centralised policy file (flown at its own N only)")
     parser.add_argument("--baseline", action="store_true", help="also fly PID + APF at every N")
     parser.add_argument("--shared-apf", action="store_true", help="also fly the shared policy + APF repulsion")
+    parser.add_argument("--shared-filter", action="store_true", help="also fly the shared policy + safety filter")
     parser.add_argument("--sizes", type=int, nargs="+", default=[2, 4, 8, 16])
     parser.add_argument("--trials", type=int, default=200)
     parser.add_argument("--seed", type=int, default=0)
@@ -371,6 +380,8 @@ def run(args: argparse.Namespace, program: str = "marlander swarm evaluate") -> 
                 cells.append(("shared", n, args.shared, platform))
             if args.shared and args.shared_apf:
                 cells.append(("shared-apf", n, args.shared, platform))
+            if args.shared and args.shared_filter:
+                cells.append(("shared-filter", n, args.shared, platform))
             if args.centralised and load_policy(args.centralised).contract.num_drones == n:
                 cells.append(("centralised", n, args.centralised, platform))
             if args.baseline:
