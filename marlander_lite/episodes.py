@@ -219,6 +219,8 @@ class LandingEpisodes:
         active = ~self.landed
         landed_now, crashed = task.touchdown_outcome(s.contact, horizontal, speed, self.landed, self.pad_radius, cfg)
         r_drones = task.drone_rewards(self.prev_dist, dist, speed, landed_now, active, cfg)
+        if cfg.landing_precision_bonus:
+            r_drones += training_aids.landing_precision_reward(horizontal, landed_now, self.pad_radius, cfg)
         if training_aids.uses_training_penalties(cfg):
             penalty = training_aids.training_aid_penalty(
                 velocity, rel_pos, s.vel, s.pad_vel, cfg, self.previous_command

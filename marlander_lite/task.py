@@ -126,6 +126,10 @@ class TaskConfig:
     action_change_penalty: float = 0.0
     """Training aid, not in the paper: reward lost per step and per m/s that a drone's command changes from the
     previous step's, ``|u_t - u_{t-1}|``. A fast tracker turns a jittery command into jittery flight. 0: off."""
+    landing_precision_bonus: float = 0.0
+    """Training aid, not in the paper: extra reward at the step a drone lands, ``landing_precision_bonus * (1 - e /
+    r)`` with ``e`` its horizontal distance from the pad centre and ``r`` the landing radius (``landing_tolerance``
+    or the pad radius). Eq. 5's ``c`` pays a landing 3 cm off centre as much as a centred one. 0 switches it off."""
     landed_height: float = 0.0125
     """Height of a drone's body origin above a surface it rests on (m): half the CF2X collision cylinder."""
     observe_platform_velocity: bool = False
@@ -160,9 +164,10 @@ class TaskConfig:
                     self.command_speed_penalty,
                     self.command_error_penalty,
                     self.action_change_penalty,
+                    self.landing_precision_bonus,
                 )
                 >= 0,
-                "the training-aid penalties must be >= 0",
+                "the training-aid penalties and landing_precision_bonus must be >= 0",
             ),
             (
                 self.approach_cone_slope >= 0 and self.approach_cone_height >= 0,

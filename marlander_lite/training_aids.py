@@ -23,6 +23,7 @@ TRAINING_AIDS_OFF: dict[str, Any] = {
     "command_speed_penalty": 0.0,
     "command_error_penalty": 0.0,
     "action_change_penalty": 0.0,
+    "landing_precision_bonus": 0.0,
 }
 """Every training aid of :class:`TaskConfig` switched off: what evaluation, the reproduction and deployment fly."""
 
@@ -82,3 +83,16 @@ def training_aid_penalty(
             raise ValueError("action_change_penalty needs the previous commands.")
         penalty += config.action_change_penalty * vector_norm(command - previous_command)
     return penalty
+
+
+def landing_precision_reward(
+    horizontal_error: np.ndarray, landed_now: np.ndarray, pad_radius: float, config: TaskConfig
+) -> np.ndarray:
+    """The ``landing_precision_bonus`` aid, ``(num_envs, N)``: ``bonus * (1 - e / r)`` for drones landing this step.
+
+    ``horizontal_error`` ``e`` (m) is each drone's distance from its pad centre in the pad plane; ``r`` is the
+    landing radius, ``landing_tolerance`` when set, else ``pad_radius`` (m).
+    """
+    radius = pad_radius if config.landing_tolerance is None else min(pad_radius, config.landing_tolerance)
+    closeness = np.clip(1.0 - horizontal_error / radius, 0.0, 1.0)
+    return np.where(landed_now, config.landing_precision_bonus * closeness, 0.0)

@@ -148,6 +148,20 @@ def test_evaluation_switches_every_training_aid_off() -> None:
     assert not training_aids.uses_training_penalties(evaluated)
 
 
+def test_landing_precision_bonus_worked_by_hand() -> None:
+    # landing radius 3 cm (landing_tolerance): a landing 1 cm off earns 10 (1 - 1/3); 3 cm or more earns 0
+    cfg = TaskConfig(landing_precision_bonus=10.0, landing_tolerance=0.03)
+    error = np.array([[0.01, 0.03, 0.0]])
+    landed_now = np.array([[True, True, False]])
+    got = training_aids.landing_precision_reward(error, landed_now, 0.1, cfg)
+    np.testing.assert_allclose(got, [[10.0 * (1 - 1 / 3), 0.0, 0.0]])
+    # without a tolerance the pad radius is the landing radius
+    got = training_aids.landing_precision_reward(error, landed_now, 0.1, TaskConfig(landing_precision_bonus=10.0))
+    np.testing.assert_allclose(got, [[9.0, 7.0, 0.0]])
+    with pytest.raises(ValueError, match="landing_precision_bonus"):
+        TaskConfig(landing_precision_bonus=-1.0)
+
+
 def test_training_touchdown_speed_is_a_stricter_landing() -> None:
     cfg = TaskConfig(training_touchdown_speed=0.3)
     contact = np.array([[task.CONTACT_OWN_PAD]])
