@@ -77,6 +77,14 @@ def broken(example: dict, change) -> dict:
         (lambda d: d["safety"].update(stale_land_s=0.05), "stale_hover_s < stale_land_s"),
         (lambda d: d["crazyflie"].update(estimator=1), "only Kalman fuses external poses"),
         (
+            lambda d: d["safety_filter"].update(min_dist=0.2),
+            r"^safety_filter.min_dist: unknown key; allowed: enabled, ",
+        ),
+        (
+            lambda d: d["safety_filter"].update(min_distance=0.3),
+            r"safety_filter.min_distance is 0.3 m but pads 'pad1' and 'pad2' .* are 0.250 m apart",
+        ),
+        (
             lambda d: d["simulation"].update(platform="moving-circle"),
             r"^simulation.platform: Input should be 'static-floor', 'static-elevated'",
         ),

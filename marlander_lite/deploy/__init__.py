@@ -5,7 +5,8 @@ The pieces, each in its own module:
 * :mod:`.config` (with :mod:`.schema`): the lab YAML: URIs, rigid bodies, rates, limits, geofence, validated;
 * :mod:`.pose_sources`: motion capture (``motioncapture``) behind the interface the loop reads;
 * :mod:`.estimation`: velocities and angular velocities from poses, data age per body;
-* :mod:`.runner`: eq. 2 observation -> exported policy -> clamped velocity setpoints;
+* :mod:`.runner`: eq. 2 observation -> exported policy -> clamped velocity setpoints, through the safety filter
+  (:mod:`marlander_lite.swarm.safety_filter`: separation, soft descent over the pad);
 * :mod:`.safety`: geofence, stale data, bad poses and actions, lost links, the pre-flight check;
 * :mod:`.link`: cflib ``Swarm``: parameters, ``send_extpose``, setpoints, land, motors off;
 * :mod:`.mission` (with :mod:`.landing`, :mod:`.results`): the fixed-rate loop tying them together;

@@ -49,6 +49,7 @@ from marlander_lite.deploy.sections import (
     PadConfig,
     RatesConfig,
     SafetyConfig,
+    SafetyFilterSection,
     SimulationConfig,
     SimulatorKind,
     current_simulator_name,
@@ -74,6 +75,7 @@ __all__ = [
     "PadConfig",
     "RatesConfig",
     "SafetyConfig",
+    "SafetyFilterSection",
     "SimulationConfig",
     "SimulatorKind",
     "current_simulator_name",
@@ -99,6 +101,7 @@ class LabConfig:
     limits: LimitsConfig = field(default_factory=LimitsConfig)
     geofence: GeofenceConfig = field(default_factory=GeofenceConfig)
     safety: SafetyConfig = field(default_factory=SafetyConfig)
+    safety_filter: SafetyFilterSection = field(default_factory=SafetyFilterSection)
     crazyflie: CrazyflieParamsConfig = field(default_factory=CrazyflieParamsConfig)
     simulation: SimulationConfig = field(default_factory=SimulationConfig)
     log_dir: Annotated[Text, Field(min_length=1, max_length=4096)] = "flight_logs"
@@ -126,6 +129,7 @@ class LabConfig:
             )
             check(d.pad not in used, f"drones {used.get(d.pad)!r} and {d.name!r} share pad {d.pad!r}; one each.")
             used[d.pad] = d.name
+        self._check_pads_fit_the_filter()
         bodies = {p.body for p in self.pads.values()}
         check(not bodies & set(names), f"a pad body is also a drone name: {sorted(bodies & set(names))}.")
         low, high = self.geofence.bounds(soft=True)
@@ -159,6 +163,29 @@ class LabConfig:
                     f"less than the sum of their radii ({a.radius + b.radius:g} m); move them apart or make them "
                     "smaller.",
                 )
+
+    def _check_pads_fit_the_filter(self) -> None:
+        """Refuse two drones' pads on the same body closer than ``safety_filter.min_distance``: drones resting on
+        them, or hovering over them to land, would be pushed apart by the filter, off their pads."""
+        if not self.safety_filter.enabled:
+            return
+        pairs = [
+            (math.dist(self.pads[a.pad].offset, self.pads[b.pad].offset), a, b)
+            for i, a in enumerate(self.drones)
+            for b in self.drones[i + 1 :]
+            if self.pads[a.pad].body == self.pads[b.pad].body  # on different bodies: the gap depends on their motion
+        ]
+        if not pairs:
+            return
+        gap, a, b = min(pairs, key=lambda pair: pair[0])
+        d_s = self.safety_filter.min_distance
+        check(
+            gap >= d_s - 1e-9,
+            f"safety_filter.min_distance is {d_s:g} m but pads {a.pad!r} and {b.pad!r} (of drones {a.name!r} and "
+            f"{b.name!r}) on body {self.pads[a.pad].body!r} are {gap:.3f} m apart: the filter would push drones over "
+            f"neighbouring pads apart, off their pads. Set safety_filter.min_distance to at most {gap:.3f} m, or move "
+            "the pads apart.",
+        )
 
     @property
     def num_drones(self) -> int:

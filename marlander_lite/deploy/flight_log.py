@@ -16,6 +16,10 @@ A tick record::
      "obs": N x 13 or null, "action": 3N or null,
      "cmd": [per drone: {"kind": "velocity"|"hover"|"takeoff"|"land"|"stop"|"none", ...}],
      "events": [{"t", "kind", "message", "drone"}], "compute_ms": time spent in the tick}
+
+With the safety filter on (config ``safety_filter.enabled``), each ``velocity`` command also says
+whether the filter changed it, ``"filtered": true|false``, and when it did, what the policy asked
+for, ``"v_policy": [vx, vy, vz]`` (m/s; ``v`` is what was sent). With it off the record is as above.
 """
 
 from __future__ import annotations

@@ -8,7 +8,8 @@ loop "sleeps") and a flight log. Every tick (``1 / rates.loop_hz`` s):
 1. read the frames that arrived, update the estimates, forward each new drone pose to its
    Crazyflie (``send_extpose``);
 2. depending on the mode: pre-flight check -> take-off -> policy (every ``ticks_per_action``-th
-   tick a new action; the velocity setpoint is re-sent every tick, keeping the firmware's
+   tick a new action, its velocity setpoints through the safety filter of the config's
+   ``safety_filter`` section; the setpoint is re-sent every tick, keeping the firmware's
    watchdog fed) -> landing -> done, with the rules of :mod:`marlander_lite.deploy.safety`
    deciding fly / hover / land;
 3. a drone that touches its own pad (within ``touchdown_height`` of its goal, within the pad
@@ -48,7 +49,7 @@ from marlander_lite.deploy.modes import (
 )
 from marlander_lite.deploy.pose_sources import Clock, PoseFrame, PoseSource
 from marlander_lite.deploy.results import MissionResult
-from marlander_lite.deploy.runner import InvalidAction, Policy, PolicyRunner
+from marlander_lite.deploy.runner import InvalidAction, Policy, PolicyRunner, describe_filtering
 from marlander_lite.deploy.safety import Event, EventKind, SafetyMonitor
 from marlander_lite.task import OBS_PER_DRONE
 
@@ -86,7 +87,8 @@ class Mission(LandingControl):
         self.hooks = list(hooks)
         contract = getattr(policy, "contract", None)
         self.task = lab.task_config(contract is not None and contract.obs_per_drone > OBS_PER_DRONE)
-        self.runner = PolicyRunner(policy, self.task, lab.limits.max_speed)
+        sf = lab.safety_filter
+        self.runner = PolicyRunner(policy, self.task, lab.limits.max_speed, sf.filter_config() if sf.enabled else None)
         self.estimator = SwarmEstimator(lab, estimator, landed_height=self.task.landed_height)
         self.safety = SafetyMonitor(lab)
         self.min_preflight_s = min_preflight_s
@@ -364,6 +366,8 @@ class Mission(LandingControl):
                     self.link.send_velocity(i, v)
                     self._set_phase(i, DronePhase.HOVER if hover else DronePhase.POLICY)
                     self.book.commands[i] = {"kind": "hover" if hover else "velocity", "v": rounded(v)}
+                    if not hover:
+                        self.output.annotate(i, self.book.commands[i])
         self._landings(est)
 
     def _run_policy(self, est: SwarmEstimate) -> None:
@@ -373,7 +377,8 @@ class Mission(LandingControl):
         out = self.output
         out.obs = self.runner.observe(est)
         try:
-            out.action, out.velocity = self.runner.act(out.obs, est.goal)
+            out.action, velocity = self.runner.act(out.obs, est.goal)
+            out.velocity = velocity if self.runner.safety_filter is None else self._filter(est, velocity)
             if not out.valid:
                 self.event("recovered", "the policy returns valid actions again")
             out.valid = True
@@ -381,6 +386,17 @@ class Mission(LandingControl):
             if out.valid:
                 self.event("invalid_action", f"{error}: hovering")
             out.valid = False
+
+    def _filter(self, est: SwarmEstimate, velocity: np.ndarray) -> np.ndarray:
+        """The policy's ``velocity`` ``(N, 3)`` m/s through the safety filter; drones not under the policy (landed,
+        landing, down) stay where they are. A ``safety_filter`` event marks each drone the filter starts to act on
+        (once per spell, :data:`~marlander_lite.deploy.mission_state.FILTER_SPELL_GAP_S`, not every step)."""
+        settled = np.array([p not in UNDER_POLICY for p in self.phase])
+        filtered, changed = self.runner.filter_velocity(velocity, est, settled)
+        for i in self.output.starts(changed, self.t):
+            self.event("safety_filter", describe_filtering(self.names, i, est, velocity[i], filtered[i]), i)
+        self.output.unfiltered, self.output.filtered = velocity, changed
+        return filtered
 
     # ------------------------------------------------------------------ lost links and requests
     def _check_links(self) -> None:

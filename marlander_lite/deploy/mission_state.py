@@ -5,7 +5,7 @@ Besides its mode and each drone's phase (:mod:`marlander_lite.deploy.modes`), a 
 =================  =====================================================================================
 ``times``          :class:`Milestones`: when the flight started, took off, handed over to the policy
 ``stream``         :class:`PoseStream`: the poses forwarded to each Crazyflie, the latest estimate
-``output``         :class:`PolicyOutput`: the policy's observation, action and velocity setpoints
+``output``         :class:`PolicyOutput`: observation, action, velocity setpoints (safety-filtered)
 ``landings``       :class:`Landings`: each drone's landing under way, and how it ended
 ``requests``       :class:`Requests`: land and stop requests from keys, signals and hooks
 ``book``           :class:`TickBook`: the current tick's commands, and what is already in the flight log
@@ -60,6 +60,11 @@ class PoseStream:
         return cls(forwarded=np.full(n, -np.inf), streaming_since=np.full(n, np.inf))
 
 
+FILTER_SPELL_GAP_S = 0.5
+"""A drone's spell of safety filtering ends when the filter has left its setpoint alone this long (s); the next
+change starts a new spell, and a new ``safety_filter`` event (one per spell, not one per step)."""
+
+
 @dataclass
 class PolicyOutput:
     """What the policy last said (eq. 2 observation in, velocity setpoints out)."""
@@ -72,6 +77,30 @@ class PolicyOutput:
     """This tick's action ``(3N,)`` in [-1, 1]; None when the policy did not run this tick."""
     valid: bool = True
     """The latest action was valid (finite, in range); False: hover until it is again."""
+    unfiltered: np.ndarray | None = None
+    """The policy's setpoints before the safety filter ``(N, 3)`` m/s; None: no filter (``velocity`` is theirs)."""
+    filtered: np.ndarray | None = None
+    """Whether the safety filter changed each drone's setpoint ``(N,)`` bool; None: no filter."""
+    last_filtered: np.ndarray | None = None
+    """Mission time the safety filter last changed each drone's setpoint ``(N,)`` s; -inf: never; None: no filter."""
+
+    def starts(self, changed: np.ndarray, t: float) -> list[int]:
+        """Drones whose setpoint the filter ``changed`` ``(N,)`` now, at mission time ``t`` (s), after leaving it
+        alone for :data:`FILTER_SPELL_GAP_S` or more: a new spell of filtering, worth an event."""
+        if self.last_filtered is None:
+            self.last_filtered = np.full(len(changed), -np.inf)
+        new = changed & (t - self.last_filtered > FILTER_SPELL_GAP_S)
+        self.last_filtered[changed] = t
+        return [int(i) for i in np.flatnonzero(new)]
+
+    def annotate(self, i: int, command: dict[str, Any]) -> None:
+        """Add to drone ``i``'s velocity record of the flight log whether the filter changed it (``filtered``) and,
+        if so, the policy's setpoint (``v_policy``, m/s); without a filter the record stays as it is."""
+        if self.filtered is None or self.unfiltered is None:
+            return
+        command["filtered"] = bool(self.filtered[i])
+        if self.filtered[i]:
+            command["v_policy"] = np.round(self.unfiltered[i], 6).tolist()
 
 
 @dataclass

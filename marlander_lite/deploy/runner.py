@@ -17,6 +17,13 @@ one of two kinds of policy file (:mod:`marlander_lite.policy_file`):
 Either way :func:`marlander_lite.task.action_to_velocity` turns the actions into m/s, and the lab
 speed limit then scales each velocity down to at most ``max_speed`` (its direction kept): the
 firmware does not clamp velocity setpoints.
+
+Not in the paper: :meth:`PolicyRunner.filter_velocity` then passes the velocities through the safety
+filter of :mod:`marlander_lite.swarm.safety_filter` (config section ``safety_filter``), the one the
+simulators' ``shared-filter`` controller uses: each command changes as little as needed for every pair
+of drones to keep ``n . (u_i - u_j) >= -gamma (d - d_s)`` (they stay ``d_s`` apart), for no drone to be
+pushed down, and for each to descend no faster than it can brake to ``v_td`` and not below a cone
+beside its pad; the result is speed-clamped again.
 """
 
 from __future__ import annotations
@@ -28,6 +35,7 @@ import numpy as np
 from marlander_lite import task
 from marlander_lite.deploy.estimation import SwarmEstimate
 from marlander_lite.swarm.observation import shared_observations
+from marlander_lite.swarm.safety_filter import SafetyFilterConfig, filter_commands
 from marlander_lite.task import TaskConfig
 
 
@@ -59,10 +67,19 @@ class PolicyRunner:
             or shared when its ``contract.neighbours`` is set.
         task_config: the MDP constants the policy was trained with (``num_drones``, ``max_speed``).
         max_speed: lab speed limit (m/s).
+        safety_filter: settings of the safety filter (``LabConfig.safety_filter``); None: no filter,
+            :meth:`filter_velocity` returns the velocities as they are.
     """
 
-    def __init__(self, policy: Policy, task_config: TaskConfig, max_speed: float) -> None:
+    def __init__(
+        self,
+        policy: Policy,
+        task_config: TaskConfig,
+        max_speed: float,
+        safety_filter: SafetyFilterConfig | None = None,
+    ) -> None:
         self.policy, self.task, self.max_speed = policy, task_config, max_speed
+        self.safety_filter = safety_filter
         contract = getattr(policy, "contract", None)
         self.neighbours: int | None = None if contract is None else contract.neighbours
         """``k`` of a shared policy (its input holds the k nearest neighbours); None for a centralised one."""
@@ -114,3 +131,47 @@ class PolicyRunner:
             raise InvalidAction(f"the action {np.round(action, 3).tolist()} is not finite and within [-1, 1]")
         velocity = task.action_to_velocity(action, self.task.num_drones, self.task.max_speed)[0]
         return action, clamp_speed(velocity, self.max_speed)
+
+    def filter_velocity(
+        self, velocity: np.ndarray, est: SwarmEstimate, settled: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The velocity setpoints ``(N, 3)`` m/s through the safety filter, and ``(N,)`` bool: which it changed.
+
+        Args:
+            velocity: the policy's clamped velocities (:meth:`act`), world frame (m/s).
+            est: this tick's estimate: the filter reads the drones' positions ``est.pos`` and velocities
+                ``est.vel`` (world frame; only their differences keep drones apart) and eq. 2's ``p = pos - goal``
+                (for the descent and approach guards, and to let the drone nearer its pad keep its line).
+            settled: ``(N,)`` bool, drones that will not move (landed, landing, down): the filter leaves their
+                setpoints alone and their neighbours keep clear of them alone.
+
+        Without a filter (``safety_filter`` None) ``velocity`` itself comes back, none changed. A filter that
+        cannot work on the estimate (not finite) raises :class:`InvalidAction`: the loop hovers.
+        """
+        if self.safety_filter is None:
+            return velocity, np.zeros(len(velocity), dtype=bool)
+        try:
+            return filter_commands(
+                est.pos,
+                est.vel,
+                velocity,
+                self.safety_filter,
+                settled=settled,
+                rel_goal=est.pos - est.goal,
+                max_speed=self.max_speed,
+            )
+        except ValueError as error:
+            raise InvalidAction(f"the safety filter failed: {error}") from None
+
+
+def describe_filtering(names: list[str], i: int, est: SwarmEstimate, before: np.ndarray, after: np.ndarray) -> str:
+    """What the safety filter did to drone ``i``'s setpoint (``before`` -> ``after``, m/s), for the flight log:
+    with its nearest neighbour's distance (m) and its height above its goal (m)."""
+    gap = np.linalg.norm(est.pos - est.pos[i], axis=-1)
+    gap[i] = np.inf
+    j = int(np.argmin(gap))
+    near = f", nearest drone {names[j]} {gap[j]:.2f} m away" if len(names) > 1 else ""
+    return (
+        f"{names[i]}: the safety filter changes its command {np.round(before, 2).tolist()} -> "
+        f"{np.round(after, 2).tolist()} m/s{near}, {est.pos[i, 2] - est.goal[i, 2]:.2f} m above its goal"
+    )

@@ -149,6 +149,7 @@ EventKind = Literal[
     "invalid_pose",
     "invalid_action",
     "recovered",
+    "safety_filter",
     "link_lost",
     "touchdown",
     "handover",

@@ -11,13 +11,14 @@ import them from there (``from marlander_lite.deploy.config import GeofenceConfi
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Annotated, Any, Literal, get_args
 
 from pydantic import BeforeValidator, Field, with_config
 
 from marlander_lite.deploy.schema import (
     SCHEMA_CONFIG,
+    ConfigError,
     Coordinate,
     Flag,
     Name,
@@ -30,6 +31,7 @@ from marlander_lite.deploy.schema import (
 )
 from marlander_lite.platforms import PLATFORM_KINDS, PlatformKind
 from marlander_lite.simulators import SIMULATORS, SimulatorName
+from marlander_lite.swarm.safety_filter import SafetyFilterConfig
 
 MocapKind = Literal["vicon", "optitrack", "qualisys", "vrpn", "mock"]
 MOCAP_KINDS: tuple[str, ...] = get_args(MocapKind)
@@ -245,6 +247,52 @@ class SafetyConfig:
             "safety thresholds must satisfy 0 < stale_hover_s < stale_land_s <= 2 s "
             f"(got {self.stale_hover_s}, {self.stale_land_s}): the firmware cuts motors after 2 s without setpoints.",
         )
+
+
+_FILTER_DEFAULTS = SafetyFilterConfig()
+
+
+@with_config(SCHEMA_CONFIG)
+@dataclass(frozen=True)
+class SafetyFilterSection:
+    """The in-flight safety filter (:mod:`marlander_lite.swarm.safety_filter`): every policy command is changed as
+    little as needed to keep the drones ``min_distance`` apart and to land softly over the pad (``docs/lab_guide.md``).
+
+    The keys override the fields of the same name of
+    :class:`~marlander_lite.swarm.safety_filter.SafetyFilterConfig`; its other fields keep their defaults. Pads of
+    neighbouring drones closer than ``min_distance`` are refused by :class:`~marlander_lite.deploy.config.LabConfig`.
+    """
+
+    enabled: Flag = True
+    """Filter every policy command (false: the policy's commands go out as they are, only speed-clamped)."""
+    min_distance: Annotated[Real, Field(gt=0, le=2)] = _FILTER_DEFAULTS.min_distance
+    """``d_s``: the distance kept between drone centres (m); at most the distance between any two drones' pads on one
+    body, and less than the filter's 1 m activation distance."""
+    settled_min_distance: Annotated[Real, Field(gt=0, le=2)] = _FILTER_DEFAULTS.settled_min_distance
+    """The distance kept from a drone already down on its pad (m). Lower it (not below eq. 6's 0.15 m) if a drone
+    hovers beside its pad next to landed neighbours until the flight time runs out."""
+    gain: Annotated[Real, Field(gt=0, le=50)] = _FILTER_DEFAULTS.gain
+    """``gamma`` (1/s): largest closing speed per metre left to ``min_distance``; also how hard a descent below the
+    approach cone is braked."""
+    reaction_time: Annotated[Real, Field(ge=0, le=1)] = _FILTER_DEFAULTS.reaction_time
+    """``tau`` (s): positions are predicted this far ahead (tracker lag + mocap and radio latency)."""
+    touchdown_speed: Annotated[Real, Field(ge=0, le=1)] = _FILTER_DEFAULTS.touchdown_speed
+    """``v_td`` of the descent guard (m/s): the drone can always brake to it before touching down; 0: no guard."""
+    cone_slope: Annotated[Real, Field(ge=0, le=10)] = _FILTER_DEFAULTS.cone_slope
+    """Approach guard: no descent below ``cone_slope`` m of height per m of horizontal distance from the pad (up to
+    0.3 m); 0: no guard."""
+
+    def __post_init__(self) -> None:
+        self.filter_config()  # the filter's own checks, as a ConfigError naming this section
+
+    def filter_config(self) -> SafetyFilterConfig:
+        """The :class:`SafetyFilterConfig` these keys set (its defaults for the rest); :class:`ConfigError` if the
+        filter refuses them."""
+        overrides = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "enabled"}
+        try:
+            return SafetyFilterConfig(**overrides)
+        except ValueError as error:
+            raise ConfigError(f"the safety filter refuses these settings: {error}") from None
 
 
 @with_config(SCHEMA_CONFIG)
