@@ -124,7 +124,10 @@ def test_the_keys_override_the_filter_s_settings(example):
 @pytest.mark.parametrize(
     ("values", "message"),
     [
-        ({"min_distnce": 0.2}, r"^safety_filter.min_distnce: unknown key; allowed: enabled, min_distance, settled_min_distance, gain, "),
+        (
+            {"min_distnce": 0.2},
+            r"^safety_filter.min_distnce: unknown key; allowed: enabled, min_distance, settled_min_distance, gain, ",
+        ),
         ({"min_distance": -0.1}, r"^safety_filter.min_distance: Input should be greater than 0 \(got -0.1\)"),
         ({"cone_slope": -1.0}, r"^safety_filter.cone_slope: Input should be greater than or equal to 0 \(got -1.0\)"),
         ({"enabled": "yes"}, r"^safety_filter.enabled: Input should be a valid boolean \(got 'yes'\)"),

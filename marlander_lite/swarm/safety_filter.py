@@ -120,7 +120,14 @@ class SafetyFilterConfig:
             value = getattr(self, f.name)
             if isinstance(value, bool) or not isinstance(value, int | float) or not np.isfinite(value) or value < 0:
                 raise ValueError(f"SafetyFilterConfig.{f.name} must be a finite number >= 0, got {value!r}.")
-        for name in ("min_distance", "settled_min_distance", "gain", "yield_distance", "min_yield", "descent_deceleration"):
+        for name in (
+            "min_distance",
+            "settled_min_distance",
+            "gain",
+            "yield_distance",
+            "min_yield",
+            "descent_deceleration",
+        ):
             if getattr(self, name) <= 0:
                 raise ValueError(f"SafetyFilterConfig.{name} must be > 0, got {getattr(self, name)!r}.")
         if self.activation_distance <= self.min_distance:
