@@ -1,9 +1,10 @@
-"""Latency of one deployment-loop tick for N drones: estimate + observation + policy + safety (target: N = 16 < 2 ms).
+"""Latency of one deployment-loop tick for N drones: estimate + observation + policy + filter + safety (N = 16 < 2 ms).
 
 Times, per tick, what the control station computes between receiving a motion-capture frame and
 sending the setpoints (paper Sec. III-A): the estimator update (finite-difference velocities,
 pad goals, data ages), the observation, the exported policy (numpy inference from a safetensors
-file), the speed clamp and the safety rules. Poses are synthetic (N drones circling above a plate
+file), the speed clamp, the safety filter (``swarm/safety_filter.py``, on by default in the lab config) and
+the safety rules. Poses are synthetic (N drones circling above a plate
 whose pads are the simulators' grid, 1 mm noise, 48 Hz). Policies, at N = 2, 8 and 16:
 
 * ``centralised``: the paper's network (512-512-256-128 ReLU, random weights) on every drone's eq. 2
@@ -41,6 +42,7 @@ from marlander_lite.deploy.pose_sources import PoseFrame
 from marlander_lite.deploy.rehearsal import rehearse
 from marlander_lite.deploy.runner import PolicyRunner
 from marlander_lite.deploy.safety import SafetyMonitor
+from marlander_lite.deploy.sections import SafetyFilterSection
 from marlander_lite.policy_file import NEIGHBOUR_FEATURES, PolicyContract, save_policy
 from marlander_lite.task import OBS_PER_DRONE
 
@@ -102,7 +104,9 @@ def bench_core(ticks: int, policy_path: Path, lab: LabConfig | None = None) -> t
     does not.
     """
     lab = lab or load_lab_config(EXAMPLE_CONFIG)
-    runner = PolicyRunner(load_lab_policy(policy_path, lab), lab.task_config(), lab.limits.max_speed)
+    sf = lab.safety_filter
+    policy = load_lab_policy(policy_path, lab)
+    runner = PolicyRunner(policy, lab.task_config(), lab.limits.max_speed, sf.filter_config() if sf.enabled else None)
     estimator = SwarmEstimator(lab, landed_height=runner.task.landed_height)
     safety = SafetyMonitor(lab)
     frames = synthetic_frames([*lab.drone_names, "plate"], ticks, lab.rates.loop_hz)
@@ -114,6 +118,7 @@ def bench_core(ticks: int, policy_path: Path, lab: LabConfig | None = None) -> t
         est = estimator.estimate(frame.t)
         obs = runner.observe(est)
         _, velocity = runner.act(obs, est.goal)
+        velocity, _ = runner.filter_velocity(velocity, est, settled=~flying)
         verdict = safety.flight(frame.t, est, flying, action_ok=True)
         times[k], cpu[k] = time.perf_counter() - start, time.thread_time() - start_cpu
     assert verdict.action == "fly" and np.isfinite(velocity).all()
@@ -136,7 +141,9 @@ def main() -> None:
     base = load_lab_config(EXAMPLE_CONFIG)
     with tempfile.TemporaryDirectory() as tmp:
         shared_paper = paper_policy(Path(tmp) / "shared-paper.safetensors", num_drones=None)
-        print(f"Core tick (estimate + observation + policy + clamp + safety), {args.ticks} ticks per run:")
+        print(
+            f"Core tick (estimate + observation + policy + clamp + safety filter + safety), {args.ticks} ticks per run:"
+        )
         for n in args.sizes:
             lab = base if n == 2 else base.with_drones(n)
             policies = {
@@ -144,9 +151,12 @@ def main() -> None:
                 "shared (shipped, 128-128)": SHARED_POLICY,
                 f"shared-paper {PAPER_HIDDEN}": shared_paper,
             }
-            for name, path in policies.items():
+            unfiltered = lab.replace(safety_filter=SafetyFilterSection(enabled=False))
+            runs = [(name, path, lab) for name, path in policies.items()]
+            runs.append(("shared (shipped, 128-128), safety filter off", SHARED_POLICY, unfiltered))
+            for name, path, config in runs:
                 for r in range(args.repeats):
-                    ms, cpu = bench_core(args.ticks, path, lab)
+                    ms, cpu = bench_core(args.ticks, path, config)
                     print(_line(f"N = {n:2d}, {name}, run {r + 1}", ms, cpu))
         print("Whole loop tick in a point-mass rehearsal (+ simulated mocap, cflib packets, virtual firmware, log):")
         rehearsals = {

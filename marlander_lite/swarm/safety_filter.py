@@ -251,12 +251,18 @@ def _separate(
     rules = [
         (np.take_along_axis(m, order[..., None], axis=-2), np.take_along_axis(b, order, axis=-1)) for m, b in rules
     ]
-    for _ in range(config.iterations):
+    rules = [(m, b) for m, b in rules if np.isfinite(b).any()]  # rules with no pair in reach change nothing
+    for _ in range(config.iterations if rules else 0):
+        moved = False
         for k in range(n - 1):
             for m, b in rules:
                 mk = m[..., :, k, :]
                 short = np.maximum(b[..., :, k] - np.einsum("...ik,...ik->...i", mk, u), 0.0)
-                u = u + short[..., None] * mk
+                if short.any():
+                    u = u + short[..., None] * mk
+                    moved = True
+        if not moved:  # a sweep that changed nothing: every later one would repeat it exactly
+            break
     return u
 
 
