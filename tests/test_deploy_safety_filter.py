@@ -350,3 +350,12 @@ def test_the_flight_log_marks_filtered_commands(tmp_path):
     off = read_flight_log(tmp_path / "off.jsonl")
     assert not any("filtered" in c for record in off.ticks for c in record["cmd"])
     assert not [e for e in off.events if e["kind"] == "safety_filter"]
+
+
+def test_deploy_says_whether_the_filter_is_on() -> None:
+    from marlander_lite.deploy.commands import safety_filter_line
+
+    lab = load_lab_config(EXAMPLE_CONFIG)
+    assert safety_filter_line(lab).startswith("Safety filter: on (drones kept 0.19 m apart")
+    off = lab.replace(safety_filter=SafetyFilterSection(enabled=False))
+    assert "OFF" in safety_filter_line(off) and "safety_filter.enabled: false" in safety_filter_line(off)

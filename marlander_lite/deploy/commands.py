@@ -109,6 +109,17 @@ def _drone_index(text: str) -> int:
     return value
 
 
+def safety_filter_line(lab: LabConfig) -> str:
+    """One line saying whether the in-flight safety filter is on, and its main settings."""
+    sf = lab.safety_filter
+    if not sf.enabled:
+        return "Safety filter: OFF (safety_filter.enabled: false): nothing keeps the drones apart in flight."
+    return (
+        f"Safety filter: on (drones kept {sf.min_distance:g} m apart, descent braked to {sf.touchdown_speed:g} m/s, "
+        f"approach cone slope {sf.cone_slope:g}; docs/lab_guide.md, 'The safety filter')."
+    )
+
+
 def run_deploy(args: argparse.Namespace) -> int:
     """Run ``marlander deploy``; returns the exit code."""
     lab = load_lab_config(args.config)
@@ -124,6 +135,7 @@ def run_deploy(args: argparse.Namespace) -> int:
         return 2
     log_path = args.log or _default_log_path(lab, "rehearsal" if args.sim else "flight")
     _check_outputs(args, log_path)
+    print(safety_filter_line(lab))
     with terminate_as_interrupt():  # outside the flight, SIGTERM/SIGHUP unwind like Ctrl-C: links closed, temp removed
         try:
             ok, interrupted = _rehearse(lab, args, log_path, fault) if args.sim else _fly(lab, args, log_path)
