@@ -1,10 +1,18 @@
 """Speed of the PyBullet Crazyflie swarm (issue 3, deliverable 7).
 
-Prints, as medians of ``--repeats`` runs measured in this one process:
+Prints, as medians of ``--repeats`` rounds measured in this one process (a round times each of
+the functions compared in turn, and a ratio is the median of the ratios within the rounds, so
+that both sides of it ran under the same load from the rest of the machine):
 
-1. simulator steps (one policy period: 2 PID ticks, 10 physics steps at 240 / 48 / 24 Hz) per
-   second, PID ticks per second and the real-time factor (simulated s per wall s), for 1, 2,
-   4 and 8 drones, with physics only (``bare``) and with ground effect + drag + downwash (``aero``);
+1. simulator steps (one policy period, 10 physics steps at 240 / 24 Hz) per second, control
+   ticks per second and the real-time factor (simulated s per wall s), for 1, 2, 4, 8 and 16
+   drones, with both velocity trackers (``pid``: 2 ticks at 48 Hz of 5 physics steps each;
+   ``firmware``, which evaluations use: 10 ticks of one physics step) and with physics only
+   (``bare``) and with ground effect + drag + downwash (``aero``). ``bare x`` is the step's
+   cost over a bare ``stepSimulation`` loop that advances the same bodies by the same time in
+   the same number of calls (gravity off, so the drones float as if hovering and nothing
+   touches), ``floor x`` the API floor's (below) over the same loop. The PyBullet calls are
+   passed the client id by position, as the simulator passes it (keywords cost ~10 % more);
 2. the cost of one step of our code over a bare ``stepSimulation`` loop that advances the same
    bodies by the same time (gravity off, so the drones float as if hovering and nothing
    touches), for the simulator alone and for the full gymnasium env (which adds the shared MDP
@@ -18,8 +26,8 @@ Prints, as medians of ``--repeats`` runs measured in this one process:
    batched in this process (``vectorization="batched"``, the default) and one swarm per
    subprocess (``"subprocess"``).
 
-Usage: ``python benchmarks/bench_crazyflie.py [--repeats 5] [--seconds 1.0]``. Timings on a
-shared machine swing: compare numbers from the same run only.
+Usage: ``python benchmarks/bench_crazyflie.py [--repeats 5] [--seconds 1.0]`` (about 10 minutes).
+Timings on a shared machine swing: compare numbers from the same run only.
 """
 
 from __future__ import annotations
@@ -27,6 +35,7 @@ from __future__ import annotations
 import argparse
 import statistics
 import time
+from collections.abc import Callable
 
 import gymnasium as gym
 import numpy as np
@@ -40,38 +49,68 @@ from marlander_lite.task import TaskConfig
 ENV_ID = "marlander_lite/CrazyflieLanding-v0"
 
 
-def hovering_swarm(num_drones: int, physics: str, policy_hz: float = 24.0) -> CrazyflieSwarm:
+def hover_grid(num_drones: int) -> np.ndarray:
+    """Level at 1.5 m on a 0.5 m grid, 4 drones a row, ``(N, 3)``."""
+    return np.array([(0.5 * (i % 4) - 0.75, 0.5 * (i // 4) - 0.25, 1.5) for i in range(num_drones)])
+
+
+def hovering_swarm(num_drones: int, physics: str, controller: str = "pid", policy_hz: float = 24.0) -> CrazyflieSwarm:
+    """A swarm hovering at :func:`hover_grid` (``firmware`` ticks at ``physics_hz``)."""
     config = PhysicsConfig.preset(physics, control_hz=48.0 if policy_hz == 24.0 else policy_hz)
-    sim = CrazyflieSwarm(TaskConfig(num_drones=num_drones, policy_hz=policy_hz), PlatformConfig(), physics=config)
-    grid = [(0.5 * (i % 4) - 0.75, 0.5 * (i // 4) - 0.25, 1.5) for i in range(num_drones)]
-    sim.place(0, np.array(grid))
+    task_config = TaskConfig(num_drones=num_drones, policy_hz=policy_hz)
+    sim = CrazyflieSwarm(task_config, PlatformConfig(), physics=config, controller=controller)
+    sim.place(0, hover_grid(num_drones))
     return sim
+
+
+def interleaved(fns: dict, seconds: float, repeats: int, setup: Callable[[], None] | None = None) -> dict:
+    """Seconds per call of each of ``fns`` in each of ``repeats`` rounds, ``{name: [s, ...]}``.
+
+    A round times every function in turn, for about ``seconds`` each, so that a ratio of two of them
+    taken within a round compares runs made under the same load from the rest of the machine.
+    ``setup`` (untimed) runs before each function's turn, e.g. to put a swarm back in its place.
+    """
+    batches = {}
+    for name, fn in fns.items():
+        if setup is not None:
+            setup()
+        fn()
+        start, calls = time.perf_counter(), 0
+        while time.perf_counter() - start < 0.1:
+            fn()
+            calls += 1
+        batches[name] = max(1, int(calls * seconds / 0.1))
+    runs = {name: [] for name in fns}
+    for _ in range(repeats):
+        for name, fn in fns.items():
+            if setup is not None:
+                setup()
+            start = time.perf_counter()
+            for _ in range(batches[name]):
+                fn()
+            runs[name].append((time.perf_counter() - start) / batches[name])
+    return runs
 
 
 def per_call(fn, seconds: float, repeats: int) -> float:
     """Median seconds per call of ``fn`` over ``repeats`` runs of about ``seconds`` each."""
-    fn()
-    start, calls = time.perf_counter(), 0
-    while time.perf_counter() - start < 0.1:
-        fn()
-        calls += 1
-    batch = max(1, int(calls * seconds / 0.1))
-    runs = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        for _ in range(batch):
-            fn()
-        runs.append((time.perf_counter() - start) / batch)
-    return statistics.median(runs)
+    return statistics.median(interleaved({"fn": fn}, seconds, repeats)["fn"])
+
+
+def ratio(runs: dict, over: str, under: str) -> float:
+    """Median over the rounds of ``runs[over] / runs[under]`` (:func:`interleaved`)."""
+    return statistics.median(a / b for a, b in zip(runs[over], runs[under], strict=True))
 
 
 def bare_physics(sim: CrazyflieSwarm) -> callable:
     """One policy period of bare PyBullet stepping over the simulator's own bodies (gravity off)."""
     ticks = round(sim.physics.control_hz / sim.task.policy_hz)
 
+    cid = sim.client
+
     def run() -> None:
         for _ in range(ticks):
-            p.stepSimulation(physicsClientId=sim.client)
+            p.stepSimulation(cid)
 
     return run
 
@@ -82,16 +121,16 @@ def api_floor(sim: CrazyflieSwarm) -> callable:
     cid, bodies, zero = sim.client, sim.world.drones, (0.0, 0.0, 0.0)
     link_frame = p.LINK_FRAME
 
-    def run() -> None:
+    def run() -> None:  # the client id by position, as the simulator passes it: keywords cost more
         for _ in range(ticks):
             for body in bodies:
-                p.applyExternalForce(body, -1, zero, zero, link_frame, physicsClientId=cid)
-                p.applyExternalTorque(body, -1, zero, link_frame, physicsClientId=cid)
-            p.stepSimulation(physicsClientId=cid)
+                p.applyExternalForce(body, -1, zero, zero, link_frame, cid)
+                p.applyExternalTorque(body, -1, zero, link_frame, cid)
+            p.stepSimulation(cid)
             p.getContactPoints(physicsClientId=cid)
             for body in bodies:
-                p.getBasePositionAndOrientation(body, physicsClientId=cid)
-                p.getBaseVelocity(body, physicsClientId=cid)
+                p.getBasePositionAndOrientation(body, cid)
+                p.getBaseVelocity(body, cid)
 
     return run
 
@@ -115,40 +154,49 @@ def main() -> None:
     reps, secs = args.repeats, args.seconds
     print(f"PyBullet {p.getAPIVersion()}, medians of {reps} runs of ~{secs:.1f} s\n")
 
-    print("1. Simulator step (policy 24 Hz = 2 PID ticks at 48 Hz = 10 physics steps at 240 Hz), hovering")
-    header = f"{'drones':>6} {'physics':>8} {'steps/s':>9} {'PID ticks/s':>12} {'real-time x':>12}"
-    print(f"{header} {'bare x':>8} {'floor x':>8}")
-    for n in (1, 2, 4, 8):
-        for physics in ("bare", "aero"):
-            sim = hovering_swarm(n, physics)
-            hover = np.zeros((1, n, 3))
-            step = per_call(lambda sim=sim, hover=hover: sim.step(hover), secs, reps)
-            ratios = f"{'':>8} {'':>8}"
-            if physics == "bare":
-                bare = per_call(with_gravity_off(sim, bare_physics(sim)), secs, reps)
-                floor = per_call(with_gravity_off(sim, api_floor(sim)), secs, reps)
-                ratios = f"{step / bare:8.2f} {floor / bare:8.2f}"
-            print(f"{n:>6} {physics:>8} {1 / step:9.0f} {2 / step:12.0f} {sim.task.dt / step:12.1f} {ratios}")
-            sim.close()
-    print("   'bare x': simulator step / bare stepSimulation loop over the same bodies (gravity off)")
-    print("   'floor x': API floor (the PyBullet calls a 48 Hz controller must make) / the same bare loop\n")
+    print("1. Simulator step (policy 24 Hz = 10 physics steps at 240 Hz), hovering; pid: 2 ticks at 48 Hz,")
+    print("   firmware: 10 ticks at 240 Hz")
+    header = f"{'drones':>6} {'tracker':>8} {'physics':>8} {'steps/s':>8} {'ticks/s':>8} {'real-time x':>11}"
+    print(f"{header} {'bare x':>7} {'floor x':>7}")
+    for n in (1, 2, 4, 8, 16):
+        for controller in ("pid", "firmware"):
+            for physics in ("bare", "aero"):
+                sim, hover, grid = hovering_swarm(n, physics, controller), np.zeros((1, n, 3)), hover_grid(n)
+                fns = {"step": lambda sim=sim, hover=hover: sim.step(hover)}
+                fns["bare"] = with_gravity_off(sim, bare_physics(sim))
+                if physics == "bare":
+                    fns["floor"] = with_gravity_off(sim, api_floor(sim))
+                # The gravity-free loops let the drones drift: put them back before each turn.
+                runs = interleaved(fns, secs, reps, setup=lambda sim=sim, grid=grid: sim.place(0, grid))
+                step = statistics.median(runs["step"])
+                floor = f"{ratio(runs, 'floor', 'bare'):7.2f}" if "floor" in runs else f"{'':>7}"
+                ticks = round(sim.physics.control_hz / sim.task.policy_hz) / step
+                row = f"{n:>6} {controller:>8} {physics:>8} {1 / step:8.0f} {ticks:8.0f} {sim.task.dt / step:11.1f}"
+                print(f"{row} {ratio(runs, 'step', 'bare'):7.2f} {floor}", flush=True)
+                sim.close()
+    print("   'bare x': simulator step / bare stepSimulation loop over the same bodies, one call per tick")
+    print("   (gravity off); 'floor x': API floor (the PyBullet calls a controller ticking at that rate")
+    print("   must make) / the same bare loop; both medians of the ratios within each round\n")
 
     print("2. Where a 2-drone env step goes (policy 24 Hz, aero physics), microseconds per step")
     forever = {"episode_seconds": 1e5}  # no episode end while timing a hovering swarm
     env = gym.make(ENV_ID, num_drones=2, physics="aero", task=forever).unwrapped
     env.reset(seed=0)
-    sim = env.simulator
-    sim.place(0, np.array([[-0.5, 0.0, 1.5], [0.5, 0.0, 1.5]]))
+    sim, pair = env.simulator, np.array([[-0.5, 0.0, 1.5], [0.5, 0.0, 1.5]])
     zero = np.zeros(6, dtype=np.float32)
     hover = np.zeros((1, 2, 3))
-    t_env = per_call(lambda: env.step(zero), secs, reps)
-    t_sim = per_call(lambda: sim.step(hover), secs, reps)
-    t_bare = per_call(with_gravity_off(sim, bare_physics(sim)), secs, reps)
-    t_floor = per_call(with_gravity_off(sim, api_floor(sim)), secs, reps)
-    print(f"   bare stepSimulation loop (10 physics steps): {t_bare * 1e6:7.0f}")
-    print(f"   API floor (+ the unavoidable PyBullet calls): {t_floor * 1e6:7.0f}  = {t_floor / t_bare:.2f} x bare")
-    print(f"   CrazyflieSwarm.step (PID, forces, contacts):  {t_sim * 1e6:7.0f}  = {t_sim / t_bare:.2f} x bare")
-    print(f"   gymnasium env step (+ LandingEpisodes, face): {t_env * 1e6:7.0f}  = {t_env / t_bare:.2f} x bare")
+    fns = {"env": lambda: env.step(zero), "sim": lambda: sim.step(hover)}
+    fns |= {"bare": with_gravity_off(sim, bare_physics(sim)), "floor": with_gravity_off(sim, api_floor(sim))}
+    runs = interleaved(fns, secs, reps, setup=lambda: sim.place(0, pair))
+    labels = {
+        "bare": "bare stepSimulation loop (10 physics steps):",
+        "floor": "API floor (+ the unavoidable PyBullet calls):",
+        "sim": "CrazyflieSwarm.step (PID, forces, contacts): ",
+        "env": "gymnasium env step (+ LandingEpisodes, face):",
+    }
+    for name, label in labels.items():
+        times = f"{statistics.median(runs[name]) * 1e6:7.0f}"
+        print(f"   {label} {times}" + ("" if name == "bare" else f"  = {ratio(runs, name, 'bare'):.2f} x bare"))
     env.close()
     print()
 

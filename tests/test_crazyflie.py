@@ -19,6 +19,7 @@ from marlander_lite.crazyflie import CF2XParams, CrazyflieSwarm, PhysicsConfig, 
 from marlander_lite.crazyflie.control import CascadedPID, attitude_loop_spectral_radius, mixer_matrix
 from marlander_lite.crazyflie.envs import CrazyflieOptions
 from marlander_lite.crazyflie.physics import MotorLag, downwash_push, ground_effect_gain, motor_wrench
+from marlander_lite.crazyflie.ticks import ControlTick
 from marlander_lite.crazyflie.world import CF2X_URDF
 from marlander_lite.episodes import LandingEpisodes
 from marlander_lite.platforms import PlatformConfig
@@ -92,6 +93,48 @@ def test_ground_effect_and_downwash_follow_the_published_models_and_stay_bounded
         assert math.isfinite(push) and -0.265 <= push <= 0.0
     assert downwash_push(0.0, 0.0, 0.265, params) == 0.0  # same height: not in the wake
     assert abs(downwash_push(1e-6, 0.2**2, 0.265, params)) < 1e-3  # and continuous there
+
+
+def test_motor_wrench_sums_each_rotors_thrust_lever_and_drag_torque():
+    # Unequal speeds and ground-effect gains, so that a rotor mixed up with another shows.
+    params = CF2XParams()
+    rpm = np.array([14000.0, 15000.0, 16000.0, 17000.0])
+    gain = np.array([1.0, 1.1, 1.2, 1.3])
+    xy = 0.028 * np.array([[1, -1], [-1, -1], [-1, 1], [1, 1]])  # M1..M4, the published layout
+    thrust = KF * rpm**2 * gain
+    expected = [
+        thrust.sum(),  # F_z
+        (xy[:, 1] * thrust).sum(),  # tau_x = sum y_i T_i
+        -(xy[:, 0] * thrust).sum(),  # tau_y = -sum x_i T_i
+        (np.asarray(params.yaw_signs) * params.km * rpm**2).sum(),  # tau_z = sum s_i k_m w_i^2
+    ]
+    np.testing.assert_allclose(motor_wrench(rpm.tolist(), params, gain.tolist()), expected, rtol=1e-12, atol=1e-18)
+
+
+def test_the_swarm_downwash_sum_skips_only_pairs_that_add_nothing():
+    # The tick sums downwash_push over the drones above only; the plain sum over every other drone, the
+    # model's definition, must give the same bits: drones level, above, below, far away, motors off.
+    params = CF2XParams()
+    rng = np.random.default_rng(3)
+    positions = rng.uniform(-0.4, 0.4, (12, 3)) + np.array([0.0, 0.0, 1.0])
+    positions[3:6, 2] = positions[5, 2]
+    positions[7] = positions[2] + np.array([0.01, 0.0, 0.3])
+    positions[9] = (5.0, 5.0, 3.0)
+    poses = [(tuple(q), (0.0, 0.0, 0.0, 1.0)) for q in positions.tolist()]
+    thrusts = rng.uniform(0.0, 0.3, 12).tolist()
+    thrusts[6] = 0.0
+    pid = CascadedPID(params, PIDGains(), 12, 1 / 48)
+    tick = ControlTick(PhysicsConfig.preset("aero"), params, pid, MotorLag(0.0, 1 / 48), (0.3, 0.3))
+    pushes = []
+    for i, (mine, _) in enumerate(poses):
+        plain = 0.0
+        for j, (other, _) in enumerate(poses):
+            if j != i:
+                d2 = (other[0] - mine[0]) ** 2 + (other[1] - mine[1]) ** 2
+                plain += downwash_push(other[2] - mine[2], d2, thrusts[j], params)
+        pushes.append(tick._downwash(mine, poses, thrusts))
+        assert pushes[-1] == plain
+    assert sum(push < 0.0 for push in pushes) >= 6 and pushes[int(np.argmax(positions[:, 2]))] == 0.0
 
 
 # ---------------------------------------------------------------------------- flight

@@ -135,7 +135,12 @@ class CascadedPID:
         """Last commanded thrust vector ``F`` per drone (world frame, N)."""
         # Gains and limits as tuples of floats, read once per tick.
         self._pos_gains = (gains.pos_p, gains.pos_i, gains.pos_d, gains.pos_integral_limit)
-        self._att_gains = tuple(zip(gains.att_p, gains.att_i, gains.att_d, gains.att_integral_limit, strict=True))
+        # Per attitude axis: -K_R / K_w (formed as the scalar law does), K_I, K_w, integral bound.
+        self._att_gains = tuple(
+            (-kp / kd, ki, kd, limit)
+            for kp, ki, kd, limit in zip(gains.att_p, gains.att_i, gains.att_d, gains.att_integral_limit, strict=True)
+        )
+        self._motor_map = (params.pwm_to_rpm_scale, params.pwm_to_rpm_offset, params.pwm_min, params.pwm_max)
 
     def reset(self, drones: Sequence[int] | None = None) -> None:
         """Clear the integrators of ``drones`` (indices; all by default)."""
@@ -196,28 +201,33 @@ class CascadedPID:
         w_body = world_to_body(rot, ang_vel)
         att = self.att_integral[i]
         limit_t, max_rate = self.gains.torque_limit, self.gains.max_body_rate
-        torque = [0.0, 0.0, 0.0]
-        for k in range(3):
-            kp, ki, kd, limit = self._att_gains[k]
+        torque = []
+        for k, (rate_gain, ki, kd, limit) in enumerate(self._att_gains):
             acc = att[k] - e[k] * dt
             att[k] = acc = acc if -limit < acc < limit else (limit if acc > 0 else -limit)
             # -K_R e - K_w w = K_w (w_d - w) with the demanded rate w_d = -(K_R / K_w) e, clipped.
-            rate = -kp / kd * e[k]
+            rate = rate_gain * e[k]
             rate = rate if -max_rate < rate < max_rate else (max_rate if rate > 0 else -max_rate)
             t = kd * (rate - w_body[k]) + ki * acc
-            torque[k] = t if -limit_t < t < limit_t else (limit_t if t > 0 else -limit_t)
-        # 3. mixer: collective thrust along the current body z axis, plus each motor's torque share.
+            torque.append(t if -limit_t < t < limit_t else (limit_t if t > 0 else -limit_t))
+        # 3. mixer: collective thrust along the current body z axis, plus each motor's torque share
+        # (written out motor by motor: this runs for every drone at every tick).
         collective = fx * r02 + fy * r12 + fz * r22
         collective = 0.0 if collective < 0.0 else self.thrust_max if collective > self.thrust_max else collective
-        scale, offset = p.pwm_to_rpm_scale, p.pwm_to_rpm_offset
+        scale, offset, lo, hi = self._motor_map
         base = (math.sqrt(collective / (4.0 * p.kf)) - offset) / scale
-        lo, hi = p.pwm_min, p.pwm_max
         tx, ty, tz = torque
-        rpm = []
-        for mx, my, mz in self._mix:
-            pwm = base + mx * tx + my * ty + mz * tz
-            rpm.append(scale * (lo if pwm < lo else hi if pwm > hi else pwm) + offset)
-        return rpm[0], rpm[1], rpm[2], rpm[3]
+        (a0, b0, c0), (a1, b1, c1), (a2, b2, c2), (a3, b3, c3) = self._mix
+        pwm0 = base + a0 * tx + b0 * ty + c0 * tz
+        pwm1 = base + a1 * tx + b1 * ty + c1 * tz
+        pwm2 = base + a2 * tx + b2 * ty + c2 * tz
+        pwm3 = base + a3 * tx + b3 * ty + c3 * tz
+        return (
+            scale * (lo if pwm0 < lo else hi if pwm0 > hi else pwm0) + offset,
+            scale * (lo if pwm1 < lo else hi if pwm1 > hi else pwm1) + offset,
+            scale * (lo if pwm2 < lo else hi if pwm2 > hi else pwm2) + offset,
+            scale * (lo if pwm3 < lo else hi if pwm3 > hi else pwm3) + offset,
+        )
 
 
 def attitude_loop_spectral_radius(params: CF2XParams, gains: PIDGains, control_hz: float) -> np.ndarray:

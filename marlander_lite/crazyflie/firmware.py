@@ -245,6 +245,7 @@ class FirmwareTracker:
             ]
             self._pids.append((velocity, attitude, rate))
         self._mix = [tuple(row) for row in mixer_matrix(params).tolist()]
+        self._motor_map = (params.pwm_max, params.pwm_to_rpm_scale, params.pwm_to_rpm_offset)
         self._phase = [0] * num_drones
         self.attitude_setpoint = [(0.0, 0.0)] * num_drones
         """Last (roll, pitch) setpoint per drone (deg, right-handed)."""
@@ -282,10 +283,11 @@ class FirmwareTracker:
         ``rot`` is the body-to-world rotation (:func:`~marlander_lite.rotations.quat_to_matrix_rows`),
         ``vel`` (m/s) and ``ang_vel`` (rad/s) are world frame, ``target_vel`` the setpoint (m/s).
         """
-        g, p = self.gains, self.params
+        g = self.gains
         velocity, attitude, rate = self._pids[i]
         roll, pitch, yaw = euler_zyx(rot)  # rad
-        if self._phase[i] == 0:
+        phase = self._phase[i]
+        if phase == 0:
             # 1. velocity loop: world error in the yaw-aligned body frame -> tilt setpoints (deg), thrust (PWM).
             c, s = math.cos(yaw), math.sin(yaw)
             ex, ey = target_vel[0] - vel[0], target_vel[1] - vel[1]
@@ -297,25 +299,30 @@ class FirmwareTracker:
             thrust = g.thrust_scale * velocity[2].update(target_vel[2] - vel[2]) + g.thrust_base
             thrust = g.thrust_min if thrust < g.thrust_min else 65535.0 if thrust > 65535.0 else thrust
             self.attitude_setpoint[i], self.thrust_command[i] = (roll_sp, pitch_sp), thrust
-        self._phase[i] = (self._phase[i] + 1) % self.velocity_every
+        self._phase[i] = (phase + 1) % self.velocity_every
         roll_sp, pitch_sp = self.attitude_setpoint[i]
         # 2. attitude loop: ZYX Euler angles (deg) -> body-rate setpoints (deg/s); yaw held at 0.
-        yaw_error = -yaw * DEG  # already within [-180, 180]
-        rate_sp = (
-            attitude[0].update(roll_sp - roll * DEG),
-            attitude[1].update(pitch_sp - pitch * DEG),
-            attitude[2].update(yaw_error),
+        roll_rate = attitude[0].update(roll_sp - roll * DEG)
+        pitch_rate = attitude[1].update(pitch_sp - pitch * DEG)
+        yaw_rate = attitude[2].update(-yaw * DEG)  # the yaw error is already within [-180, 180]
+        # 3. rate loop on the body rates (deg/s) -> roll, pitch, yaw commands (PWM units), then the mixer
+        # (written out motor by motor: this runs for every drone at every physics step).
+        wx, wy, wz = world_to_body(rot, ang_vel)
+        tx = rate[0].update(roll_rate - wx * DEG)
+        ty = rate[1].update(pitch_rate - wy * DEG)
+        tz = rate[2].update(yaw_rate - wz * DEG)
+        thrust, hi, scale, offset = self.thrust_command[i], *self._motor_map
+        (a0, b0, c0), (a1, b1, c1), (a2, b2, c2), (a3, b3, c3) = self._mix
+        pwm0 = thrust + a0 * tx + b0 * ty + c0 * tz
+        pwm1 = thrust + a1 * tx + b1 * ty + c1 * tz
+        pwm2 = thrust + a2 * tx + b2 * ty + c2 * tz
+        pwm3 = thrust + a3 * tx + b3 * ty + c3 * tz
+        return (
+            scale * (0.0 if pwm0 < 0.0 else hi if pwm0 > hi else pwm0) + offset,
+            scale * (0.0 if pwm1 < 0.0 else hi if pwm1 > hi else pwm1) + offset,
+            scale * (0.0 if pwm2 < 0.0 else hi if pwm2 > hi else pwm2) + offset,
+            scale * (0.0 if pwm3 < 0.0 else hi if pwm3 > hi else pwm3) + offset,
         )
-        # 3. rate loop on the body rates (deg/s) -> roll, pitch, yaw commands (PWM units), then the mixer.
-        body = world_to_body(rot, ang_vel)
-        tx, ty, tz = (rate[k].update(rate_sp[k] - body[k] * DEG) for k in range(3))
-        thrust, hi = self.thrust_command[i], p.pwm_max
-        scale, offset = p.pwm_to_rpm_scale, p.pwm_to_rpm_offset
-        rpm = []
-        for mx, my, mz in self._mix:
-            pwm = thrust + mx * tx + my * ty + mz * tz
-            rpm.append(scale * (0.0 if pwm < 0.0 else hi if pwm > hi else pwm) + offset)
-        return rpm[0], rpm[1], rpm[2], rpm[3]
 
 
 def rate_loop_spectral_radius(

@@ -5,9 +5,11 @@ module, and is free of PyBullet, so each formula can be tested on its own. The s
 calls them at every control tick and sums their results into ONE force and ONE torque per
 drone, in the body frame, which it hands to PyBullet at every physics step.
 
-Why floats and not numpy arrays over the drones: a swarm has 2 to 8 drones, and a numpy call
-costs about 1 microsecond whatever its size, while a float operation costs about 0.05; a
-drone's whole model is about 100 float operations (see ``benchmarks/bench_crazyflie.py``).
+Why floats and not numpy arrays over the drones: a numpy call on a few numbers costs 0.3 to 1
+microsecond whatever its size, a float operation about 0.03, and a drone's whole model is about
+100 float operations. A control tick vectorised over the drones (tried, with the same bits) was
+slower than this drone-by-drone code up to 16 drones, the downwash's pair sum included
+(``benchmarks/bench_crazyflie.py``).
 
 Symbols: ``w_i`` rotor speed (RPM), ``T_i = k_f w_i^2`` rotor thrust (N), ``R`` propeller radius,
 ``r_ij`` entries of the drone's rotation matrix (body to world).
@@ -39,14 +41,17 @@ def motor_wrench(
     ``tau_z = sum s_i k_m w_i^2``.
     """
     kf, km = params.kf, params.km
-    fz = tx = ty = tz = 0.0
-    for w, g, (x, y), s in zip(rpm, thrust_gain, params.rotor_xy, params.yaw_signs, strict=True):
-        w2 = w * w
-        thrust = kf * w2 * g
-        fz += thrust
-        tx += y * thrust
-        ty -= x * thrust
-        tz += s * km * w2
+    (x0, y0), (x1, y1), (x2, y2), (x3, y3) = params.rotor_xy
+    s0, s1, s2, s3 = params.yaw_signs
+    w0, w1, w2, w3 = rpm
+    g0, g1, g2, g3 = thrust_gain
+    q0, q1, q2, q3 = w0 * w0, w1 * w1, w2 * w2, w3 * w3
+    t0, t1, t2, t3 = kf * q0 * g0, kf * q1 * g1, kf * q2 * g2, kf * q3 * g3
+    # Written out rotor by rotor (the simulator calls this per drone and tick), summed from M1 to M4.
+    fz = (((0.0 + t0) + t1) + t2) + t3
+    tx = (((0.0 + y0 * t0) + y1 * t1) + y2 * t2) + y3 * t3
+    ty = (((0.0 - x0 * t0) - x1 * t1) - x2 * t2) - x3 * t3
+    tz = (((0.0 + s0 * km * q0) + s1 * km * q1) + s2 * km * q2) + s3 * km * q3
     return fz, tx, ty, tz
 
 
@@ -113,10 +118,13 @@ def downwash_push(dz: float, horizontal_sq: float, thrust_above: float, params: 
     if dz <= 0.0:
         return 0.0
     c1, c2, _ = params.downwash_coeffs
-    ratio = params.prop_radius / (4.0 * dz)
-    peak = min(c1 * ratio * ratio, thrust_above)
-    width = c2 * dz + params.arm + params.prop_radius
-    onset = min(1.0, dz / params.collision_height)
+    radius = params.prop_radius
+    ratio = radius / (4.0 * dz)
+    peak = c1 * ratio * ratio
+    peak = thrust_above if thrust_above < peak else peak  # min(peak, T_above), as min() picks, without the call
+    width = c2 * dz + params.arm + radius
+    onset = dz / params.collision_height
+    onset = onset if onset < 1.0 else 1.0
     return -peak * math.exp(-horizontal_sq / (2.0 * width * width)) * onset
 
 

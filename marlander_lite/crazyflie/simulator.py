@@ -4,8 +4,8 @@ One env step (one policy period ``task.dt``, 1/24 s by default) runs as::
 
     target = p + u dt                        # eq. 3, task.next_target_position, once per action
     repeat control_hz / policy_hz times:     # PID ticks (2 by default)
-        rpm    = CascadedPID(state, target, u)                   # control.py
-        wrench = motors (+ ground effect) + drag + downwash      # physics.py, body frame
+        rpm    = CascadedPID(state, target, u)                   # control.py   } ticks.ControlTick,
+        wrench = motors (+ ground effect) + drag + downwash      # physics.py   } body frame
         move a moving platform, and the drones latched to it, to where it is at the tick's end
         one applyExternalForce + one applyExternalTorque per flying drone
         stepSimulation: PyBullet runs physics_hz / control_hz steps (5 by default) itself
@@ -60,11 +60,11 @@ from marlander_lite.crazyflie.perturb import (
     build_tracker,
     check_controller,
 )
-from marlander_lite.crazyflie.physics import MotorLag, downwash_push, drag_force, ground_effect_gains, motor_wrench
+from marlander_lite.crazyflie.physics import MotorLag
+from marlander_lite.crazyflie.ticks import ControlTick
 from marlander_lite.crazyflie.world import World, connect
 from marlander_lite.episodes import SwarmState
 from marlander_lite.platforms import PlatformConfig, PlatformMotion
-from marlander_lite.rotations import quat_to_matrix_rows, world_to_body
 from marlander_lite.task import TaskConfig
 
 CONTACT_TOLERANCE = 1e-3
@@ -72,7 +72,6 @@ CONTACT_TOLERANCE = 1e-3
 collision margin apart."""
 _ORIGIN = (0.0, 0.0, 0.0)
 _ZERO = (0.0, 0.0, 0.0)
-_NO_GAIN = (1.0, 1.0, 1.0, 1.0)
 
 
 class CrazyflieSwarm:
@@ -124,8 +123,6 @@ class CrazyflieSwarm:
         n = self.num_drones = task_config.num_drones
         tracker = build_tracker(controller, self.perturbation, self.params, self.gains, self.physics, n, firmware_gains)
         self.physics, self.body_params, self._delay = tracker.physics, tracker.body, tracker.delay
-        self.controller: CascadedPID | FirmwareTracker = tracker.controller
-        """The tracker (``controller_kind`` names it); it believes in ``params``, PyBullet flies ``body_params``."""
         self._ticks_per_action = ratio_to_count(
             self.physics.control_hz, task_config.policy_hz, "control_hz", "policy_hz"
         )
@@ -136,8 +133,10 @@ class CrazyflieSwarm:
         self.world = World(self.client, n, platform, self.body_params, self.physics, task_config.arena_half_width)
         self.motion = PlatformMotion(platform, 1, n, task_config.arena_half_width)
         self._motor_lag = MotorLag(self.physics.motor_time_constant, self.control_dt)
-        self._half_x, self._half_y = platform.geometry.half_extents(n)
-        self._rotors = self.params.rotor_positions.tolist()
+        self.controller: CascadedPID | FirmwareTracker = tracker.controller
+        """The tracker (``controller_kind`` names it); it believes in ``params``, PyBullet flies ``body_params``."""
+        half = platform.geometry.half_extents(n)
+        self._tick = ControlTick(self.physics, self.params, self.controller, self._motor_lag, half)
         self.time = 0.0
         # Published state, (1, N, ...) as the Simulator protocol wants; views of one buffer that
         # is filled with one assignment per env step.
@@ -198,11 +197,12 @@ class CrazyflieSwarm:
         commands = u[0].tolist()
         self.contact[:] = task.CONTACT_NONE
         self._touched_now = [False] * self.num_drones
-        sent, delay = (targets, commands), self._delay
+        sent, delay, run = (targets, commands), self._delay, self._tick.run
         for _ in range(self._ticks_per_action):
             if delay is not None:  # what reaches the tracker now was sent latency_s ago
                 targets, commands = delay.push(sent)
-            self._control_tick(targets, commands)
+            state = self._poses, self._vels, self._active, targets, commands, self._plate_pos
+            run(*state, self.rpm, self.rpm_command, self._forces, self._torques)
             self._advance_tick()
             self._read_state()
         self._publish()
@@ -296,50 +296,6 @@ class CrazyflieSwarm:
             self.rpm[i] = [0.0] * 4
             self.rpm_command[i] = [0.0] * 4
 
-    def _control_tick(self, targets: list, commands: list) -> None:
-        """Run the PID and evaluate the forces that act during the next ``1 / control_hz`` seconds."""
-        cfg, params, pid = self.physics, self.params, self.controller
-        poses, vels = self._poses, self._vels
-        rots = [quat_to_matrix_rows(pose[1]) for pose in poses]
-        effective, lag = self.rpm, self._motor_lag
-        if lag.active:
-            effective = [list(rpm) for rpm in self.rpm]
-        for i in self._active:
-            pos, (vel, ang_vel) = poses[i][0], vels[i]
-            self.rpm_command[i] = rpm = list(pid.update(i, pos, rots[i], vel, ang_vel, targets[i], commands[i]))
-            if lag.active:  # first-order rotor lag, see MotorLag
-                effective[i], self.rpm[i] = lag.step(rpm, self.rpm[i])
-            else:
-                self.rpm[i] = rpm
-        if cfg.downwash:
-            thrusts = [params.kf * sum(w * w for w in rpm) for rpm in effective]
-        for i in self._active:
-            rot, pos, vel = rots[i], poses[i][0], vels[i][0]
-            fx = fy = fz = 0.0
-            if cfg.drag:
-                fx, fy, fz = drag_force(sum(effective[i]), world_to_body(rot, vel), params)
-            if cfg.downwash:
-                push = 0.0
-                for j, other in enumerate(poses):
-                    if j != i:
-                        q = other[0]
-                        d2 = (q[0] - pos[0]) ** 2 + (q[1] - pos[1]) ** 2
-                        push += downwash_push(q[2] - pos[2], d2, thrusts[j], params)
-                # World (0, 0, push) in body axes is push times the third row of R.
-                fx, fy, fz = fx + rot[6] * push, fy + rot[7] * push, fz + rot[8] * push
-            gain = self._ground_effect(pos, rot) if cfg.ground_effect else _NO_GAIN
-            fz_motor, tx, ty, tz = motor_wrench(effective[i], params, gain)
-            self._forces[i] = (fx, fy, fz + fz_motor)
-            self._torques[i] = (tx, ty, tz)
-
-    def _ground_effect(self, pos: tuple, rot: tuple) -> tuple[float, ...]:
-        """Each rotor's thrust gain from its height above the floor, or above the plate when the drone is over it."""
-        px, py, pz = self._plate_pos
-        over_plate = abs(pos[0] - px) <= self._half_x and abs(pos[1] - py) <= self._half_y and pos[2] >= pz
-        base = pos[2] - (pz if over_plate else 0.0)
-        r20, r21, r22 = rot[6], rot[7], rot[8]
-        return ground_effect_gains([base + r20 * x + r21 * y + r22 * z for x, y, z in self._rotors], self.params)
-
     def _advance_tick(self) -> None:
         """Apply the held forces and let PyBullet run one control period (``steps_per_tick`` physics steps)."""
         cid, bodies = self.client, self.world.drones
@@ -347,11 +303,12 @@ class CrazyflieSwarm:
             self._set_platform_time(self.time + self.control_dt, move_latched=True)
         apply_force, apply_torque, link_frame = p.applyExternalForce, p.applyExternalTorque, p.LINK_FRAME
         forces, torques = self._forces, self._torques
+        # physicsClientId by position: PyBullet parses keywords more slowly, and these run per drone and tick.
         for i in self._active:
             body = bodies[i]
-            apply_force(body, -1, forces[i], _ORIGIN, link_frame, physicsClientId=cid)
-            apply_torque(body, -1, torques[i], link_frame, physicsClientId=cid)
-        p.stepSimulation(physicsClientId=cid)
+            apply_force(body, -1, forces[i], _ORIGIN, link_frame, cid)
+            apply_torque(body, -1, torques[i], link_frame, cid)
+        p.stepSimulation(cid)
         self.time += self.control_dt
         points = p.getContactPoints(physicsClientId=cid)
         if points:
@@ -407,8 +364,8 @@ class CrazyflieSwarm:
         """Read every drone's pose and velocity from PyBullet (two calls per drone), as tuples."""
         cid, bodies = self.client, self.world.drones
         get_pose, get_vel = p.getBasePositionAndOrientation, p.getBaseVelocity
-        self._poses = [get_pose(body, physicsClientId=cid) for body in bodies]
-        self._vels = [get_vel(body, physicsClientId=cid) for body in bodies]
+        self._poses = [get_pose(body, cid) for body in bodies]
+        self._vels = [get_vel(body, cid) for body in bodies]
 
     def _publish(self) -> None:
         """Copy the working state into the arrays of :meth:`state` (one sign per attitude: w >= 0)."""
