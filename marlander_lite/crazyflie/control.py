@@ -95,6 +95,35 @@ def check_gains(gains: object) -> None:
             )
 
 
+def mix_to_rpm(
+    base: float,
+    tx: float,
+    ty: float,
+    tz: float,
+    mix: Sequence[Sequence[float]],
+    scale: float,
+    offset: float,
+    lo: float,
+    hi: float,
+) -> tuple[float, float, float, float]:
+    """Motor mixer of both trackers: PWM ``base + a_i tx + b_i ty + c_i tz`` per motor (rows ``(a_i, b_i, c_i)`` of
+    ``mix``), clamped to ``[lo, hi]``, then mapped to rotor speed ``scale * pwm + offset`` (RPM).
+
+    Written out motor by motor: it runs for every drone at every control tick.
+    """
+    (a0, b0, c0), (a1, b1, c1), (a2, b2, c2), (a3, b3, c3) = mix
+    pwm0 = base + a0 * tx + b0 * ty + c0 * tz
+    pwm1 = base + a1 * tx + b1 * ty + c1 * tz
+    pwm2 = base + a2 * tx + b2 * ty + c2 * tz
+    pwm3 = base + a3 * tx + b3 * ty + c3 * tz
+    return (
+        scale * (lo if pwm0 < lo else hi if pwm0 > hi else pwm0) + offset,
+        scale * (lo if pwm1 < lo else hi if pwm1 > hi else pwm1) + offset,
+        scale * (lo if pwm2 < lo else hi if pwm2 > hi else pwm2) + offset,
+        scale * (lo if pwm3 < lo else hi if pwm3 > hi else pwm3) + offset,
+    )
+
+
 def mixer_matrix(params: CF2XParams) -> np.ndarray:
     """How each motor's PWM moves with a torque command, ``(4, 3)``.
 
@@ -211,23 +240,12 @@ class CascadedPID:
             t = kd * (rate - w_body[k]) + ki * acc
             torque.append(t if -limit_t < t < limit_t else (limit_t if t > 0 else -limit_t))
         # 3. mixer: collective thrust along the current body z axis, plus each motor's torque share
-        # (written out motor by motor: this runs for every drone at every tick).
         collective = fx * r02 + fy * r12 + fz * r22
         collective = 0.0 if collective < 0.0 else self.thrust_max if collective > self.thrust_max else collective
         scale, offset, lo, hi = self._motor_map
         base = (math.sqrt(collective / (4.0 * p.kf)) - offset) / scale
         tx, ty, tz = torque
-        (a0, b0, c0), (a1, b1, c1), (a2, b2, c2), (a3, b3, c3) = self._mix
-        pwm0 = base + a0 * tx + b0 * ty + c0 * tz
-        pwm1 = base + a1 * tx + b1 * ty + c1 * tz
-        pwm2 = base + a2 * tx + b2 * ty + c2 * tz
-        pwm3 = base + a3 * tx + b3 * ty + c3 * tz
-        return (
-            scale * (lo if pwm0 < lo else hi if pwm0 > hi else pwm0) + offset,
-            scale * (lo if pwm1 < lo else hi if pwm1 > hi else pwm1) + offset,
-            scale * (lo if pwm2 < lo else hi if pwm2 > hi else pwm2) + offset,
-            scale * (lo if pwm3 < lo else hi if pwm3 > hi else pwm3) + offset,
-        )
+        return mix_to_rpm(base, tx, ty, tz, self._mix, scale, offset, lo, hi)
 
 
 def attitude_loop_spectral_radius(params: CF2XParams, gains: PIDGains, control_hz: float) -> np.ndarray:

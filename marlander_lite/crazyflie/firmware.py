@@ -64,7 +64,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from marlander_lite.crazyflie.control import check_gains, mixer_matrix
+from marlander_lite.crazyflie.control import check_gains, mix_to_rpm, mixer_matrix
 from marlander_lite.crazyflie.params import CF2XParams
 from marlander_lite.rotations import RotationRows, euler_zyx, world_to_body
 
@@ -306,23 +306,12 @@ class FirmwareTracker:
         pitch_rate = attitude[1].update(pitch_sp - pitch * DEG)
         yaw_rate = attitude[2].update(-yaw * DEG)  # the yaw error is already within [-180, 180]
         # 3. rate loop on the body rates (deg/s) -> roll, pitch, yaw commands (PWM units), then the mixer
-        # (written out motor by motor: this runs for every drone at every physics step).
         wx, wy, wz = world_to_body(rot, ang_vel)
         tx = rate[0].update(roll_rate - wx * DEG)
         ty = rate[1].update(pitch_rate - wy * DEG)
         tz = rate[2].update(yaw_rate - wz * DEG)
-        thrust, hi, scale, offset = self.thrust_command[i], *self._motor_map
-        (a0, b0, c0), (a1, b1, c1), (a2, b2, c2), (a3, b3, c3) = self._mix
-        pwm0 = thrust + a0 * tx + b0 * ty + c0 * tz
-        pwm1 = thrust + a1 * tx + b1 * ty + c1 * tz
-        pwm2 = thrust + a2 * tx + b2 * ty + c2 * tz
-        pwm3 = thrust + a3 * tx + b3 * ty + c3 * tz
-        return (
-            scale * (0.0 if pwm0 < 0.0 else hi if pwm0 > hi else pwm0) + offset,
-            scale * (0.0 if pwm1 < 0.0 else hi if pwm1 > hi else pwm1) + offset,
-            scale * (0.0 if pwm2 < 0.0 else hi if pwm2 > hi else pwm2) + offset,
-            scale * (0.0 if pwm3 < 0.0 else hi if pwm3 > hi else pwm3) + offset,
-        )
+        hi, scale, offset = self._motor_map
+        return mix_to_rpm(self.thrust_command[i], tx, ty, tz, self._mix, scale, offset, 0.0, hi)
 
 
 def rate_loop_spectral_radius(
