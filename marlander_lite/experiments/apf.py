@@ -51,7 +51,7 @@ from dataclasses import asdict, dataclass, fields
 import numpy as np
 
 from marlander_lite.platforms import PlateGeometry
-from marlander_lite.task import OBS_PER_DRONE
+from marlander_lite.task import EQ2_POSITION, EQ2_VELOCITY, OBS_PER_DRONE
 
 
 @dataclass(frozen=True)
@@ -141,7 +141,7 @@ def split_observation(obs: np.ndarray, num_drones: int) -> tuple[np.ndarray, np.
             f"Observation has shape {o.shape}; expected ({sizes[0]},) or ({sizes[1]},) for {num_drones} drone(s)."
         )
     per_drone = o.reshape(num_drones, -1)
-    return per_drone[:, 0:3], per_drone[:, 7:10]
+    return per_drone[:, EQ2_POSITION], per_drone[:, EQ2_VELOCITY]
 
 
 def relative_positions(p: np.ndarray, pad_offsets: np.ndarray) -> np.ndarray:

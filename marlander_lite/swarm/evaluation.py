@@ -44,12 +44,10 @@ from marlander_lite.pointmass.simulator import PointMassSwarm
 from marlander_lite.policy_file import load_policy, read_contract
 from marlander_lite.sensing import SensingConfig
 from marlander_lite.swarm.policy import SharedPolicy
-from marlander_lite.swarm.safety_filter import with_safety_filter
+from marlander_lite.swarm.safety_filter import BatchAct, with_safety_filter
 from marlander_lite.task import OBS_PER_DRONE, TaskConfig
 
 SCALING_CONTROLLERS = ("shared", "shared-apf", "shared-filter", "centralised", "baseline")
-BatchAct = Callable[[np.ndarray], np.ndarray]
-"""Centralised observations of every env ``(E, 13 N)`` -> actions ``(E, 3 N)``."""
 
 
 @dataclass(frozen=True)

@@ -25,11 +25,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from marlander_lite.task import OBS_PER_DRONE
+from marlander_lite.task import EQ2_POSITION, EQ2_VELOCITY, OBS_PER_DRONE
 
 NEIGHBOUR_FEATURES = 7
 """Numbers per neighbour: relative position (3, m), relative velocity (3, m/s), present flag (1)."""
-_POS, _VEL = slice(0, 3), slice(7, 10)  # where p and v sit in eq. 2's 13 numbers
 
 
 def shared_obs_size(neighbours: int, obs_per_drone: int = OBS_PER_DRONE) -> int:
@@ -65,9 +64,9 @@ def neighbour_features(
     lead = obs.shape[:-2]
     out = np.zeros((*lead, n, neighbours, NEIGHBOUR_FEATURES))
     if n > 1:
-        pos = obs[..., _POS] + offsets  # plate-relative positions (plus the common goal lift)
+        pos = obs[..., EQ2_POSITION] + offsets  # plate-relative positions (plus the common goal lift)
         rel_pos = pos[..., None, :, :] - pos[..., :, None, :]  # [..., i, j] = x_j - x_i
-        rel_vel = obs[..., None, :, _VEL] - obs[..., :, None, _VEL]
+        rel_vel = obs[..., None, :, EQ2_VELOCITY] - obs[..., :, None, EQ2_VELOCITY]
         dist = np.einsum("...k,...k->...", rel_pos, rel_pos)
         dist[..., np.arange(n), np.arange(n)] = np.inf  # a drone is not its own neighbour
         # A stable sort, so that equal distances keep the drones' order (ties have measure zero in flight).

@@ -56,9 +56,12 @@ from typing import Any
 
 import numpy as np
 
+from marlander_lite.platforms import PlateGeometry
+from marlander_lite.task import EQ2_POSITION, EQ2_VELOCITY
+
 _EPS = 1e-9
-PAD_RADIUS = 0.1
-"""m: a drone within this horizontal distance of its goal, low and slow, counts as settled (the task's pad radius)."""
+PAD_RADIUS = PlateGeometry().pad_radius
+"""m: a drone within this horizontal distance of its goal, low and slow, counts as settled (the plate's pad radius)."""
 
 
 @dataclass(frozen=True)
@@ -303,6 +306,7 @@ def _lowest_vertical_command(goal: np.ndarray, config: SafetyFilterConfig) -> np
 
 
 BatchAct = Callable[[np.ndarray], np.ndarray]
+"""Centralised observations of every env ``(E, 13 N)`` -> actions ``(E, 3 N)`` in [-1, 1]."""
 
 
 def with_safety_filter(
@@ -326,7 +330,7 @@ def with_safety_filter(
     def filtered(obs: np.ndarray) -> np.ndarray:
         obs = np.asarray(obs, dtype=float)
         per_drone = obs.reshape(len(obs), num_drones, -1)
-        rel_goal, vel = per_drone[..., 0:3], per_drone[..., 7:10]
+        rel_goal, vel = per_drone[..., EQ2_POSITION], per_drone[..., EQ2_VELOCITY]
         command = np.clip(np.asarray(act(obs), dtype=float), -1.0, 1.0).reshape(len(obs), num_drones, 3)
         u, _ = filter_commands(
             rel_goal + offsets,
