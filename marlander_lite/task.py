@@ -32,10 +32,10 @@ import numpy as np
 from marlander_lite.rotations import vector_norm
 
 OBS_PER_DRONE = 13
+"""Length of one drone's observation (eq. 2): position 3, quaternion 4, velocity 3, angular velocity 3."""
 EQ2_POSITION, EQ2_VELOCITY = slice(0, 3), slice(7, 10)
 """Where ``p`` (position minus goal, m) and ``v`` (velocity relative to the platform, m/s) sit in each drone's
 eq. 2 observation (:func:`observe`: ``[p, q, v, omega]``)."""
-"""Length of one drone's observation (eq. 2): position 3, quaternion 4, velocity 3, angular velocity 3."""
 ACT_PER_DRONE = 3
 """Length of one drone's action (eq. 3): a velocity command along x, y, z."""
 

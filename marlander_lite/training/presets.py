@@ -97,6 +97,14 @@ class TrainConfig:
     """CPU threads for torch."""
     checkpoint_every: int = 1_000_000
     """Save a checkpoint every this many steps (0: only at the end)."""
+    smoothness_temporal: float = 0.0
+    """Training aid, not in the paper: lambda_T of the CAPS regulariser (:mod:`~marlander_lite.training.smoothness`),
+    weight of the change of the policy's mean action between consecutive steps. 0: off."""
+    smoothness_spatial: float = 0.0
+    """Training aid, not in the paper: lambda_S of the CAPS regulariser, weight of the change of the mean action
+    under observation noise of ``smoothness_noise``. 0: off."""
+    smoothness_noise: float = 0.05
+    """Standard deviation of that noise, in units of the normalised observation."""
 
     def __post_init__(self) -> None:
         problems = []
@@ -119,6 +127,9 @@ class TrainConfig:
             problems.append("gamma and gae_lambda must be in (0, 1]")
         if self.learning_rate <= 0:
             problems.append(f"learning_rate must be > 0, got {self.learning_rate}")
+        for name in ("smoothness_temporal", "smoothness_spatial", "smoothness_noise"):
+            if not getattr(self, name) >= 0:
+                problems.append(f"{name} must be >= 0 (0 switches it off), got {getattr(self, name)!r}")
         if problems:
             raise ValueError("Invalid training config: " + "; ".join(problems) + ".")
 
@@ -196,10 +207,14 @@ MOVING_LANDING_TOLERANCE = 0.07
 the static presets' 3 cm, almost every touchdown on a pad moving at 0.2-0.5 m/s (4-5 cm off) was a crash in training,
 and the policy landed 35-57 % of moving trials (``moving-robust``); with 7 cm and 16 M steps, 90-95.5 % on the point
 mass and through the firmware tracker (``moving-robust-16m``, docs/transfer.md)."""
+_ALL_HEIGHTS = {"platform": "static-elevated", "platform_height": (0.005, 1.0)}
+"""Static plates from the floor (5 mm) up to the UR10's 1 m, drawn per episode. Trained on the floor pad alone,
+``quick-cpu`` landed 84-89 % on the UR10 plate (PyBullet PID, point mass); trained on every height, 91.5-98.5 %
+(docs/transfer.md)."""
 _MOVING_PLATFORMS = {"platform": "moving-arc", "platform_speed": (0.0, 0.6), "platform_height": (0.005, 1.0)}
 
 PRESETS: dict[str, TrainConfig] = {
-    "quick-cpu": _QUICK,
+    "quick-cpu": _QUICK.replace(**_ALL_HEIGHTS),
     "paper": _QUICK.replace(
         torch_threads=2,
         total_steps=20_000_000,
@@ -220,9 +235,7 @@ PRESETS: dict[str, TrainConfig] = {
     "moving-crazyflie-finetune": _FINETUNE.replace(
         task={**_FINETUNE.task, "observe_platform_velocity": True}, **_MOVING_PLATFORMS
     ),
-    "single-agent": _QUICK.replace(
-        num_drones=1, total_steps=3_000_000, platform="static-elevated", platform_height=(0.005, 1.0)
-    ),
+    "single-agent": _QUICK.replace(num_drones=1, total_steps=3_000_000, **_ALL_HEIGHTS),
 }
 """Named presets; see :func:`describe_presets`."""
 
@@ -230,7 +243,8 @@ FINETUNE_PRESETS = ("crazyflie-finetune", "moving-crazyflie-finetune")
 """Presets that continue a trained run (``--init-from RUN``) rather than start from scratch."""
 
 PRESET_NOTES: dict[str, str] = {
-    "quick-cpu": "2 drones, floor pad, point mass with a dynamics family, 128-128 ReLU, 8 M steps: minutes on 2 cores.",
+    "quick-cpu": "2 drones, static pads from the floor to 1 m, point mass with a dynamics family, 128-128 ReLU, 8 M "
+    "steps: minutes on 2 cores.",
     "paper": "the paper's 512-512-256-128 ReLU policy, 20 M steps, point mass (about 45 min on 2 cores).",
     "crazyflie-finetune": "continue a quick-cpu/paper run in the PyBullet Crazyflie swarm, 3 M steps (~30 min).",
     "moving": "beyond the paper: observes the platform velocity; UR10 arcs at 0-0.6 m/s, floor to 1 m, 16 M steps.",
