@@ -212,6 +212,12 @@ _ALL_HEIGHTS = {"platform": "static-elevated", "platform_height": (0.005, 1.0)}
 seed 0 trained this way (``quick-cpu-all-heights``) lands 91.5-99 % in every static column of the transfer matrix,
 but over seeds 0-4 the recipe is far less steady than the floor pad alone (worst seed 13 % on the point-mass floor,
 46 % through the firmware tracker; floor only: 93.5 % and 94 %; docs/transfer.md)."""
+SMOOTH_COMMANDS = {"smoothness_temporal": 1.0, "smoothness_spatial": 1.0}
+"""The CAPS smoothness aid (:mod:`~marlander_lite.training.smoothness`) of the ``moving`` preset. Trained 16 M steps
+without it, robust policies learn a period-3 command cycle near the pad and touch down too fast on trackers that
+answer at once or 60 ms late (``moving-robust-16m``: 24.5-28 % on static pads with 60 ms latency, 79-81 % on the point
+mass); with it (``moving-smooth-16m``, one seed) 98-99.5 % there and >= 78.5 % in every cell of the transfer matrix
+(docs/transfer.md). The 8 M-step ``quick-cpu`` stays without it: after 8 M steps it lands less with it."""
 _MOVING_PLATFORMS = {"platform": "moving-arc", "platform_speed": (0.0, 0.6), "platform_height": (0.005, 1.0)}
 
 PRESETS: dict[str, TrainConfig] = {
@@ -232,6 +238,7 @@ PRESETS: dict[str, TrainConfig] = {
         total_steps=16_000_000,
         task={**TRAINING_AIDS, "landing_tolerance": MOVING_LANDING_TOLERANCE, "observe_platform_velocity": True},
         **_MOVING_PLATFORMS,
+        **SMOOTH_COMMANDS,
     ),
     "moving-crazyflie-finetune": _FINETUNE.replace(
         task={**_FINETUNE.task, "observe_platform_velocity": True}, **_MOVING_PLATFORMS
@@ -247,7 +254,8 @@ PRESET_NOTES: dict[str, str] = {
     "quick-cpu": "2 drones, floor pad, point mass with a dynamics family, 128-128 ReLU, 8 M steps: minutes on 2 cores.",
     "paper": "the paper's 512-512-256-128 ReLU policy, 20 M steps, point mass (about 45 min on 2 cores).",
     "crazyflie-finetune": "continue a quick-cpu/paper run in the PyBullet Crazyflie swarm, 3 M steps (~30 min).",
-    "moving": "beyond the paper: observes the platform velocity; UR10 arcs at 0-0.6 m/s, floor to 1 m, 16 M steps.",
+    "moving": "beyond the paper: observes the platform velocity; UR10 arcs at 0-0.6 m/s, floor to 1 m, smooth "
+    "commands, 16 M steps.",
     "moving-crazyflie-finetune": "continue a 'moving' run in the PyBullet Crazyflie swarm, 3 M steps (~30 min).",
     "single-agent": "one drone (MorphoLander-style: applied per drone with APF repulsion), 3 M steps.",
 }

@@ -21,6 +21,7 @@ that run's action noise grew from 0.12 to 0.27 while it learnt nothing in 7 M st
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -42,7 +43,7 @@ def consecutive_pairs(episode_starts: np.ndarray) -> tuple[np.ndarray, np.ndarra
 
 
 def smoothness_loss(
-    mean_action: torch.nn.Module | object,
+    mean_action: Callable[[torch.Tensor], torch.Tensor],
     obs_now: torch.Tensor,
     obs_next: torch.Tensor,
     temporal: float,
@@ -53,10 +54,10 @@ def smoothness_loss(
 
     ``mean_action`` maps observations to the policy mean, ``(batch, act_dim)``.
     """
-    now = mean_action(obs_now)  # type: ignore[operator]
-    loss = temporal * (now - mean_action(obs_next)).pow(2).sum(dim=-1).mean()  # type: ignore[operator]
+    now = mean_action(obs_now)
+    loss = temporal * (now - mean_action(obs_next)).pow(2).sum(dim=-1).mean()
     if spatial > 0:
-        jittered = mean_action(obs_now + noise * torch.randn_like(obs_now))  # type: ignore[operator]
+        jittered = mean_action(obs_now + noise * torch.randn_like(obs_now))
         loss = loss + spatial * (now - jittered).pow(2).sum(dim=-1).mean()
     return loss
 
