@@ -7,8 +7,14 @@ import torch
 from safetensors.numpy import load_file
 
 from marlander_lite.plotting import read_progress
+from marlander_lite.policy_file import load_policy
 from marlander_lite.training.presets import get_preset
-from marlander_lite.training.smoothness import SmoothnessRegulariser, consecutive_pairs, smoothness_loss
+from marlander_lite.training.smoothness import (
+    SmoothnessRegulariser,
+    command_changes_near_pad,
+    consecutive_pairs,
+    smoothness_loss,
+)
 from marlander_lite.training.train import train
 
 
@@ -75,3 +81,11 @@ def test_a_regularised_run_is_seeded_and_differs_from_the_plain_run(tmp_path):
     for key in a:
         np.testing.assert_array_equal(a[key], b[key])
     assert any(not np.array_equal(a[k], plain[k]) for k in a)
+
+
+def test_the_shipped_moving_policies_near_the_pad_cycle_without_the_aid_and_not_with_it():
+    # moving-robust-16m (16 M steps, no aid) and moving-smooth-16m (the same recipe with the aid), docs/transfer.md
+    cycling = command_changes_near_pad(load_policy("data/policies/moving-robust-16m.safetensors"), swarms=8)
+    smooth = command_changes_near_pad(load_policy("data/policies/moving-smooth-16m.safetensors"), swarms=8)
+    assert cycling.size > 100 and smooth.size > 100
+    assert np.median(cycling) > 0.3 and np.median(smooth) < 0.1

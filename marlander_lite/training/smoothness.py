@@ -130,3 +130,52 @@ class SmoothnessRegulariser(BaseCallback):
         loss = smoothness_loss(self._mean_action, now, nxt, self.temporal, self.spatial, self.noise)
         loss.backward()
         self.losses.append(float(loss.detach()))
+
+
+def command_changes_near_pad(
+    policy: Any,
+    *,
+    swarms: int = 64,
+    steps: int = 100,
+    seed: int = 0,
+    height: float = 0.2,
+    radius: float = 0.1,
+    **env_options: Any,
+) -> np.ndarray:
+    """How much the vertical command jumps from one step to the next while a drone is about to touch down.
+
+    Flies ``policy`` (an :class:`~marlander_lite.policy_file.MLPPolicy` with a centralised contract)
+    deterministically on the point mass, every training aid off, ``swarms`` swarms for ``steps`` steps, and returns
+    ``|u_z(t) - u_z(t-1)|`` (m/s), a 1-D array, for every drone and step that is at most ``height`` above and
+    ``radius`` beside its goal (eq. 2's ``p``). A period-3 cycle shows as a median of 0.4 m/s and more; smooth
+    commands stay below 0.1.
+    """
+    from marlander_lite.make import make_vec_env
+    from marlander_lite.task import ACT_PER_DRONE, EQ2_POSITION
+    from marlander_lite.training_aids import TRAINING_AIDS_OFF
+
+    contract = policy.contract
+    contract.require_centralised("command_changes_near_pad")
+    n = contract.num_drones
+    task = {**contract.task, **TRAINING_AIDS_OFF, **env_options.pop("task", {})}
+    env = make_vec_env("pointmass", num_envs=swarms, seed=seed, num_drones=n, task=task, **env_options)
+    scale = float(task.get("max_speed", 3.0))
+    changes: list[np.ndarray] = []
+    try:
+        obs = env.reset()
+        previous = None
+        for _ in range(steps):
+            action = np.asarray(policy.act(obs), dtype=np.float64)
+            goal_offset = obs.reshape(swarms, n, -1)[:, :, EQ2_POSITION]
+            near = (goal_offset[..., 2] > 0) & (goal_offset[..., 2] < height)
+            near &= np.linalg.norm(goal_offset[..., :2], axis=-1) < radius
+            vertical = scale * action.reshape(swarms, n, ACT_PER_DRONE)[..., 2]
+            if previous is not None:
+                step_change = np.abs(vertical - previous)
+                changes.append(step_change[near & np.isfinite(step_change)])
+            obs, _, done, _ = env.step(action.astype(np.float32))
+            previous = vertical.copy()
+            previous[done] = np.nan  # a new episode starts: no pair across the reset
+    finally:
+        env.close()
+    return np.concatenate(changes) if changes else np.zeros(0)
