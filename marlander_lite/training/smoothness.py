@@ -28,6 +28,11 @@ import numpy as np
 import torch
 from stable_baselines3.common.callbacks import BaseCallback
 
+from marlander_lite.make import make_vec_env
+from marlander_lite.policy_file import MLPPolicy
+from marlander_lite.task import ACT_PER_DRONE, EQ2_POSITION, TaskConfig
+from marlander_lite.training_aids import TRAINING_AIDS_OFF
+
 
 def consecutive_pairs(episode_starts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Indices ``(t, env)`` of rollout steps whose next step belongs to the same episode.
@@ -133,7 +138,7 @@ class SmoothnessRegulariser(BaseCallback):
 
 
 def command_changes_near_pad(
-    policy: Any,
+    policy: MLPPolicy,
     *,
     swarms: int = 64,
     steps: int = 100,
@@ -150,16 +155,12 @@ def command_changes_near_pad(
     ``radius`` beside its goal (eq. 2's ``p``). A period-3 cycle shows as a median of 0.4 m/s and more; smooth
     commands stay below 0.1.
     """
-    from marlander_lite.make import make_vec_env
-    from marlander_lite.task import ACT_PER_DRONE, EQ2_POSITION
-    from marlander_lite.training_aids import TRAINING_AIDS_OFF
-
     contract = policy.contract
     contract.require_centralised("command_changes_near_pad")
     n = contract.num_drones
     task = {**contract.task, **TRAINING_AIDS_OFF, **env_options.pop("task", {})}
     env = make_vec_env("pointmass", num_envs=swarms, seed=seed, num_drones=n, task=task, **env_options)
-    scale = float(task.get("max_speed", 3.0))
+    scale = TaskConfig().replace(**task).max_speed
     changes: list[np.ndarray] = []
     try:
         obs = env.reset()
