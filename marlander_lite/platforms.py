@@ -7,13 +7,17 @@ For ``N`` drones the pads form a near-square grid at the same spacing (the defau
 ring (:class:`PlateGeometry`); beyond the paper, the plate may also be inclined up to 15 degrees and
 more (its future work, Sec. VI: "inclined surfaces").
 
-Four motions cover the paper's experiments (Fig. 7):
+Four motions cover the paper's experiments (Fig. 7), and a fifth mixes the two moving ones for training:
 
 ``static-floor``     the plate lies on the floor (Fig. 7a);
 ``static-elevated``  the plate is held still by the UR10, 0.5-1.0 m up (Fig. 7b);
 ``moving-linear``    the plate moves back and forth along a straight stroke at constant speed (Fig. 7c);
 ``moving-arc``       the UR10 base swings the plate within -pi/2..pi/2 at a constant tool speed
-                     (Sec. IV-C: 0.2 to 0.5 m/s).
+                     (Sec. IV-C: 0.2 to 0.5 m/s);
+``moving-mixed``     each episode draws ``moving-linear`` or ``moving-arc``, half each (for training; not in
+                     the paper). The 1 m stroke turns back every 2.5 s at 0.5 m/s, the 2.8 m arc every 6 s.
+                     The ``moving`` preset trained on it landed no better on the line and worse on the arc
+                     than on the arc alone (one seed, docs/transfer.md), so no preset uses it.
 
 Moving plates cruise at the tool speed and brake and speed up again at the ends of their path
 with a finite acceleration (:func:`shuttle`), as an arm executing linear moves does.
@@ -32,9 +36,9 @@ from typing import Literal, get_args
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-PlatformKind = Literal["static-floor", "static-elevated", "moving-linear", "moving-arc"]
+PlatformKind = Literal["static-floor", "static-elevated", "moving-linear", "moving-arc", "moving-mixed"]
 PLATFORM_KINDS: tuple[str, ...] = get_args(PlatformKind)
-MOVING_KINDS: tuple[str, ...] = ("moving-linear", "moving-arc")
+MOVING_KINDS: tuple[str, ...] = ("moving-linear", "moving-arc", "moving-mixed")
 DEFAULT_MOVING_SPEED = 0.35
 """Tool speed (m/s) used when a moving platform is asked for without a speed: the middle of
 the paper's 0.2-0.5 m/s range."""
@@ -321,6 +325,7 @@ class PlatformMotion:
         hx, hy = config.geometry.half_extents(num_drones)
         self._plate_half_diag = math.hypot(hx, hy)
         self._arena_half_width = arena_half_width
+        self.is_moving = config.is_moving
         self._free = arena_half_width - self._plate_half_diag - self._path_half_width()
         if self._free < 0:
             raise ValueError(
@@ -333,13 +338,15 @@ class PlatformMotion:
         self.phase = np.zeros(num_envs)
         self.speed = np.full(num_envs, config.resolved_speed)
         """Per env tool speed (m/s), drawn from ``config.speed_range`` at every :meth:`sample`."""
+        self.on_line = np.full(num_envs, config.kind == "moving-linear")
+        """Per env: does the plate follow the straight stroke (else the arc, when moving)? Drawn per episode
+        for ``moving-mixed``."""
 
     def _path_half_width(self) -> float:
-        if self.config.kind == "moving-linear":
-            return self.config.linear_stroke / 2
-        if self.config.kind == "moving-arc":
-            return self.config.arc_radius
-        return 0.0
+        kind, cfg = self.config.kind, self.config
+        line = cfg.linear_stroke / 2 if kind in ("moving-linear", "moving-mixed") else 0.0
+        arc = cfg.arc_radius if kind in ("moving-arc", "moving-mixed") else 0.0
+        return max(line, arc)
 
     def sample(self, rng: np.random.Generator, env_ids: np.ndarray) -> None:
         """Draw a new random placement (and phase, for moving kinds) for ``env_ids``."""
@@ -355,6 +362,8 @@ class PlatformMotion:
         low, high = cfg.speed_range
         if high > low:
             self.speed[env_ids] = rng.uniform(low, high, size=n)
+        if cfg.kind == "moving-mixed":  # drawn last: the other kinds keep their random streams
+            self.on_line[env_ids] = rng.random(n) < 0.5
 
     def state(self, t: np.ndarray, env_ids: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Plate position and velocity at elapsed times ``t`` (s), each ``(len(t), 3)``.
@@ -367,19 +376,25 @@ class PlatformMotion:
         pos = np.asfortranarray(self.anchor[sel]).copy(order="F")
         vel = np.zeros_like(pos)
         phase, heading = self.phase[sel], self.heading[sel]
-        if cfg.kind == "moving-linear":
-            u, rate = shuttle(t, phase, cfg.linear_stroke, speed, cfg.reversal_acceleration)
-            cos, sin = np.cos(heading), np.sin(heading)
+        if not self.is_moving:
+            return pos, vel
+        on_line = self.on_line[sel]
+        # Whole-batch slices for the single kinds: the same numbers as masks, without copying every array.
+        line = slice(None) if on_line.all() else on_line
+        arc_ids = slice(None) if not on_line.any() else ~on_line
+        if on_line.any():
+            u, rate = shuttle(t[line], phase[line], cfg.linear_stroke, speed[line], cfg.reversal_acceleration)
+            cos, sin = np.cos(heading[line]), np.sin(heading[line])
             along = u - 0.5 * cfg.linear_stroke
-            pos[:, 0] += cos * along
-            pos[:, 1] += sin * along
-            vel[:, 0], vel[:, 1] = cos * rate, sin * rate
-        elif cfg.kind == "moving-arc":
+            pos[line, 0] += cos * along
+            pos[line, 1] += sin * along
+            vel[line, 0], vel[line, 1] = cos * rate, sin * rate
+        if not on_line.all():
             arc = 2.0 * cfg.arc_half_angle * cfg.arc_radius
-            u, rate = shuttle(t, phase, arc, speed, cfg.reversal_acceleration)
-            theta = heading - cfg.arc_half_angle + u / cfg.arc_radius
+            u, rate = shuttle(t[arc_ids], phase[arc_ids], arc, speed[arc_ids], cfg.reversal_acceleration)
+            theta = heading[arc_ids] - cfg.arc_half_angle + u / cfg.arc_radius
             cos, sin = np.cos(theta), np.sin(theta)
-            pos[:, 0] += cfg.arc_radius * cos
-            pos[:, 1] += cfg.arc_radius * sin
-            vel[:, 0], vel[:, 1] = -sin * rate, cos * rate
+            pos[arc_ids, 0] += cfg.arc_radius * cos
+            pos[arc_ids, 1] += cfg.arc_radius * sin
+            vel[arc_ids, 0], vel[arc_ids, 1] = -sin * rate, cos * rate
         return pos, vel

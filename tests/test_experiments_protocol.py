@@ -1,5 +1,6 @@
 """Controllers, the seeded trial protocol, result files and the ``marlander reproduce`` command."""
 
+import hashlib
 import json
 import os
 import subprocess
@@ -13,6 +14,7 @@ from marlander_lite.cli import main
 from marlander_lite.experiments import apf, tables
 from marlander_lite.experiments.apf import APFConfig
 from marlander_lite.experiments.controllers import (
+    DEFAULT_POLICIES,
     ControllerSpec,
     PIDAPFController,
     SingleAgentAPFController,
@@ -271,6 +273,18 @@ def test_cli_writes_tables_figures_and_refreshes_the_document(tmp_path):
     (out / "summary_by_condition.csv").unlink()
     assert main(["reproduce", "--report-only", "--out", str(out), "--no-doc", "--no-figures"]) == 0
     assert (out / "summary_by_condition.csv").read_text() == before
+
+
+def test_the_run_record_names_each_policy_file_flown_and_its_digest(tmp_path):
+    out = tmp_path / "run"
+    args = ["reproduce", "--controllers", "baseline,marlander-plus", "--conditions", "static-floor", "--trials", "1"]
+    assert main([*args, "--workers", "1", "--out", str(out), "--no-doc", "--no-figures"]) == 0
+    record = json.loads((out / "run.json").read_text())
+    default = DEFAULT_POLICIES["pointmass"]["marlander-plus"]
+    assert record["policies"] == {
+        "marlander-plus": {"file": str(default), "sha256": hashlib.sha256(default.read_bytes()).hexdigest()}
+    }
+    assert f"`marlander-plus` flew `{default}`" in (out / "run.md").read_text()
 
 
 # ---------------------------------------------------------------------------- shipped results are protected

@@ -134,8 +134,14 @@ def assert_paper_columns(rows: list[dict[str, str]], group: str) -> None:
 
 
 def assert_shipped_tables(shown: Shown, group: str) -> None:
-    """Both simulators' shipped Table I or II: our columns from the shipped summary, the paper's from the paper."""
-    for title, simulator in (("point-mass simulator, shipped", "pointmass"), ("PyBullet Crazyflie", "crazyflie")):
+    """Both simulators' shipped Table I or II, and the PyBullet fine-tunes': our columns from the shipped summary,
+    the paper's from the paper."""
+    shipped = (
+        ("point-mass simulator, shipped", "pointmass"),
+        ("PyBullet Crazyflie", "crazyflie"),
+        ("PyBullet fine-tunes, the comparison rows", "crazyflie-finetunes"),
+    )
+    for title, simulator in shipped:
         rows = shown.table(title)
         assert_table_repeats_summary(rows, RESULTS / simulator / "summary_by_group.csv", group)
         assert_paper_columns(rows, group)

@@ -83,6 +83,26 @@ def test_every_platform_path_stays_inside_the_arena(kind):
     assert expected_z[0] <= pos[:, 2].min() and pos[:, 2].max() <= expected_z[1]
 
 
+def test_mixed_platform_flies_the_line_or_the_arc_half_each():
+    mixed = PlatformMotion(PlatformConfig(kind="moving-mixed", speed=(0.2, 0.5)), 400, 2, 2.0)
+    mixed.sample(np.random.default_rng(5), np.arange(400))
+    assert 0.4 < mixed.on_line.mean() < 0.6
+    # Each env follows exactly the single-kind path with the same anchor, heading, phase and speed.
+    for kind, envs in (("moving-linear", mixed.on_line), ("moving-arc", ~mixed.on_line)):
+        single = PlatformMotion(PlatformConfig(kind=kind, speed=(0.2, 0.5)), 400, 2, 2.0)
+        for name in ("anchor", "heading", "phase", "speed"):
+            setattr(single, name, getattr(mixed, name).copy())
+        for t in (0.0, 1.3, 4.7):
+            np.testing.assert_allclose(mixed.state(np.full(400, t))[0][envs], single.state(np.full(400, t))[0][envs])
+    # A new episode draws the kind again; a single kind never changes it.
+    before = mixed.on_line.copy()
+    mixed.sample(np.random.default_rng(6), np.arange(400))
+    assert (mixed.on_line != before).any()
+    arc = PlatformMotion(PlatformConfig(kind="moving-arc"), 50, 2, 2.0)
+    arc.sample(np.random.default_rng(0), np.arange(50))
+    assert not arc.on_line.any()
+
+
 def test_bad_platform_configs_say_what_is_allowed():
     with pytest.raises(ValueError, match="allowed: static-floor"):
         PlatformConfig(kind="trampoline")  # type: ignore[arg-type]

@@ -54,6 +54,8 @@ def test_negative_weights_are_refused_with_the_allowed_range():
         get_preset("quick-cpu").replace(smoothness_temporal=-1.0)
     with pytest.raises(ValueError, match=">= 0"):
         SmoothnessRegulariser(temporal=1.0, spatial=-0.1, noise=0.05, batch_size=64, seed=0)
+    with pytest.raises(ValueError, match="smoothness_batch_size must be an integer >= 1 or None"):
+        get_preset("quick-cpu").replace(smoothness_batch_size=0)
 
 
 def _tiny(**changes):
@@ -81,6 +83,10 @@ def test_a_regularised_run_is_seeded_and_differs_from_the_plain_run(tmp_path):
     for key in a:
         np.testing.assert_array_equal(a[key], b[key])
     assert any(not np.array_equal(a[k], plain[k]) for k in a)
+    # A smaller CAPS sample is another draw of pairs: another run, still a regularised one.
+    small = train(_tiny(seed=3, smoothness_batch_size=64, **smooth), tmp_path / "small")
+    assert np.isfinite(read_progress(small.root)["train/smoothness_loss"]).any()
+    assert any(not np.array_equal(a[k], load_file(str(small.policy))[k]) for k in a)
 
 
 def test_the_shipped_moving_policies_near_the_pad_cycle_without_the_aid_and_not_with_it():

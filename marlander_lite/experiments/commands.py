@@ -44,6 +44,7 @@ from marlander_lite.experiments.protocol import (
     record_trajectory,
     run_protocol,
 )
+from marlander_lite.training.provenance import file_sha256
 
 RESULTS_ROOT = Path("data/results")
 """The shipped results: written only by a full run with ``--update-shipped``."""
@@ -332,6 +333,7 @@ def _run_locked(args: argparse.Namespace, config: ProtocolConfig, out: Path, doc
             "flight_seconds": round(flight_s or 0.0, 1),
             "total_seconds": round(total_s, 1),
             "command": command_line(config, out, update_shipped=args.update_shipped),
+            "policies": flown_policies(config),
         }
         (out / "run.json").write_text(json.dumps(run_record, indent=2) + "\n")
         written.append(tables.write_markdown(tables.run_table(run_record), out / "run.md"))
@@ -414,6 +416,17 @@ def _describe(config: ProtocolConfig) -> str:
         f"{config.simulator}, controllers {','.join(config.controllers)}, {len(config.conditions)} conditions, "
         f"trials {config.trials}, sensing {config.sensing}, {config.workers} worker(s)"
     )
+
+
+def flown_policies(config: ProtocolConfig) -> dict[str, dict[str, str]]:
+    """Per policy controller of ``config``: the policy file it flew and the file's sha256, for ``run.json``
+    (the default files change between releases; the record says which ones these trials used)."""
+    flown = {}
+    for name in config.controllers:
+        path = config.spec(name).resolved_policy_path
+        if path is not None:
+            flown[name] = {"file": str(path), "sha256": file_sha256(path)}
+    return flown
 
 
 def _progress(done: int, total: int) -> None:

@@ -49,13 +49,16 @@ DEFAULT_POLICIES: dict[str, dict[str, Path]] = {
         "marlander-plus": Path("data/policies/moving.safetensors"),
     },
     "crazyflie": {
-        "marlander": Path("data/policies/crazyflie-finetune.safetensors"),
-        "single-agent-apf": Path("data/policies/single-agent-crazyflie-finetune.safetensors"),
-        "marlander-plus": Path("data/policies/moving-crazyflie-finetune.safetensors"),
+        "marlander": Path("data/policies/paper-robust.safetensors"),
+        "single-agent-apf": Path("data/policies/single-agent-smooth-8m.safetensors"),
+        "marlander-plus": Path("data/policies/moving-smooth-16m.safetensors"),
     },
 }
-"""Shipped policy files per simulator and controller (the PyBullet ones are fine-tuned in PyBullet);
-``--marlander-policy``, ``--single-agent-policy`` and ``--marlander-plus-policy`` override them."""
+"""Shipped policy files per simulator and controller; ``--marlander-policy``, ``--single-agent-policy`` and
+``--marlander-plus-policy`` override them. The point-mass rows fly the v0.1 policies trained against one nominal
+tracker, as the paper trained in one simulator. The PyBullet rows fly policies trained on the point mass only,
+against a family of trackers (docs/transfer.md): the point of the paper is a policy that lands where it was not
+trained. The PyBullet fine-tunes they replaced are the comparison rows of ``data/results/crazyflie-finetunes``."""
 
 
 class Controller(Protocol):

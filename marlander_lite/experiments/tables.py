@@ -342,12 +342,15 @@ def paper_intervals_table() -> str:
 def run_table(record: dict[str, Any]) -> str:
     """Markdown: what a run flew and how long it took (from its ``run.json`` record)."""
     c = record["config"]
+    policies = record.get("policies", {})  # records written before policies were recorded have none
     return (
         f"**Run:** {record['trials']} trials on the {c['simulator']} simulator ({', '.join(c['controllers'])}; "
         f"{len(c['conditions'])} conditions; trials per cell: {c['trials']}; sensing {c['sensing']}; time limit "
         f"{c['time_limit_s']:g} s; seed {c['seed']}), flown in {record['flight_seconds']:.0f} s by {c['workers']} "
         f"worker process(es); {record['total_seconds']:.0f} s with tables and figures. Command: "
-        f"`{record['command']}`.\n"
+        f"`{record['command']}`."
+        + "".join(f" `{name}` flew `{p['file']}` (sha256 {p['sha256'][:12]}...)." for name, p in policies.items())
+        + "\n"
     )
 
 

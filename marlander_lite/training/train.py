@@ -370,7 +370,7 @@ def _learn(
                 config.smoothness_temporal,
                 config.smoothness_spatial,
                 config.smoothness_noise,
-                batch_size=config.batch_size,
+                batch_size=config.smoothness_batch_size or config.batch_size,
                 seed=config.seed,
             )
         )
