@@ -154,8 +154,8 @@ class CrazyflieLandingEnv(SwarmLandingEnv):
     platform_speed=None, task=None, sensing=None, physics=None, drone=None, gains=None, controller="pid",
     perturbation=None``), or ``options=CrazyflieOptions(...)``: ``platform`` is one of
     ``static-floor``, ``static-elevated``, ``moving-linear``, ``moving-arc``, ``moving-mixed`` (line or arc
-    per episode); ``platform_speed`` the moving
-    tool speed (m/s, default 0.35); ``task`` a :class:`TaskConfig` or dict of fields to change
+    per episode); ``platform_speed`` the moving tool speed (m/s, default 0.35); ``task`` a :class:`TaskConfig`
+    or dict of fields to change
     (``policy_hz`` sets the action rate); ``sensing`` a :class:`SensingConfig` or ``"vicon"``; ``physics`` a
     :class:`PhysicsConfig`, ``"aero"`` (default: ground effect, drag, downwash) or ``"bare"`` (rigid body
     and motors only), or a dict of its fields (e.g. ``{"control_hz": 30, "downwash": False}``); ``drone`` a

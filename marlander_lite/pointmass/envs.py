@@ -91,8 +91,8 @@ class PointMassLandingEnv(SwarmLandingEnv):
     :class:`PointMassOptions` (``num_drones=2, platform="static-floor", platform_speed=None, task=None,
     sensing=None, dynamics=None, engine="auto"``), or ``options=PointMassOptions(...)``: ``platform`` is one of
     ``static-floor``, ``static-elevated``, ``moving-linear``, ``moving-arc``, ``moving-mixed`` (line or
-    arc per episode); ``platform_speed`` the
-    moving tool speed (m/s, default 0.35); ``task`` a :class:`TaskConfig` or dict of fields to change;
+    arc per episode); ``platform_speed`` the moving tool speed (m/s, default 0.35); ``task`` a
+    :class:`TaskConfig` or dict of fields to change;
     ``sensing`` a :class:`SensingConfig` or ``"vicon"`` for motion-capture noise and latency;
     ``dynamics`` a :class:`~marlander_lite.pointmass.simulator.PointMassParams` or a dict of its fields.
     """

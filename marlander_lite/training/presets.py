@@ -106,8 +106,8 @@ class TrainConfig:
     smoothness_noise: float = 0.05
     """Standard deviation of that noise, in units of the normalised observation."""
     smoothness_batch_size: int | None = None
-    """Consecutive pairs per CAPS gradient; None: ``batch_size``. A smaller sample keeps the regulariser cheap
-    for the paper's 512-wide network, whose three extra passes otherwise cost 2-3 times PPO's own update."""
+    """Consecutive pairs per CAPS gradient; None: ``batch_size``. A smaller sample keeps the regulariser cheap for the
+    paper's 512-wide network: its ``paper`` run trained at 1,500-2,000 steps/s with 8192 pairs, 3,000 with 1024."""
 
     def __post_init__(self) -> None:
         problems = []
