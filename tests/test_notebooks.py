@@ -357,6 +357,15 @@ def check_09(shown: Shown) -> None:
         assert f"**{stem}**" in shown_tables
     assert "static-floor tilt 15 deg" in shown_tables
     assert "**crazyflie_firmware_filter**" in shown_tables
+    # The tables of the filter as it is now, on both simulators, with the landing error under the paper's 2.26 cm.
+    for stem in ("scaling_filter_guard", "crazyflie_firmware_filter_guard"):
+        table = shown_tables.split(f"**{stem}**", 1)[1].split("**", 1)[0]
+        errors = [
+            first_number(row["landing error cm [95 % CI]"])
+            for row in markdown_rows(table)
+            if row["controller"] == "shared-filter"
+        ]
+        assert errors and max(errors) <= 2.26, (stem, errors)
     # The safety filter's head-on pair: each closes at gamma/2 (d - d_s) = 2 (0.5 - 0.19) m/s at most, and the
     # pair flown with velocity = command stays at the 0.19 m safety distance (collision: 0.15 m).
     [(limit,)] = shown.numbers(r"each may close at most gamma/2 \(d - d_s\) = (\S+) m/s")

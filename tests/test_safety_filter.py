@@ -92,8 +92,25 @@ def test_descent_guard_caps_at_the_braking_speed() -> None:
     assert v * 0.2 + (v * v - 0.09) / 2.0 == pytest.approx(0.5)
 
 
+def test_centring_draws_a_drone_over_its_pad_to_the_centre_and_nothing_else() -> None:
+    config = SafetyFilterConfig()
+    assert config.centring_gain == 2.0
+    hover = np.array([[0.0, 0.0, 0.0]])
+    # 3 cm east and 2 cm north of the centre, 5 cm up: + k_c (-0.03, -0.02) = (-0.06, -0.04) m/s horizontally.
+    off = np.array([[0.03, 0.02, 0.05]])
+    out, acted = filter_commands(off, np.zeros((1, 3)), hover, rel_goal=off)
+    np.testing.assert_allclose(out[0, :2], [-0.06, -0.04])
+    assert acted[0]
+    # Outside the pad radius (0.2 m off) or above h_max = 0.3 m the rule does not act; nor with k_c = 0.
+    for far in ([[0.2, 0.0, 0.05]], [[0.03, 0.02, 0.5]]):
+        out, _ = filter_commands(np.array(far), np.zeros((1, 3)), hover, rel_goal=np.array(far))
+        np.testing.assert_array_equal(out[0, :2], [0.0, 0.0])
+    out, _ = filter_commands(off, np.zeros((1, 3)), hover, SafetyFilterConfig(centring_gain=0.0), rel_goal=off)
+    np.testing.assert_array_equal(out[0, :2], [0.0, 0.0])
+
+
 def test_approach_guard_stops_descent_beside_the_pad() -> None:
-    # r = 0.5 m: surface min(1.0 (0.5 - 0.05), 0.3) = 0.3 m; below it no descent, above it braked at gamma
+    # r = 0.5 m: surface min(1.0 (0.5 - 0), 0.3) = 0.3 m; below it no descent, above it braked at gamma
     command = np.array([[0.0, 0.0, -1.0]])
     low = np.array([[0.5, 0.0, 0.2]])
     out, _ = filter_commands(low, np.zeros((1, 3)), command, rel_goal=low)
@@ -101,6 +118,14 @@ def test_approach_guard_stops_descent_beside_the_pad() -> None:
     higher = np.array([[0.5, 0.0, 0.4]])
     out, _ = filter_commands(higher, np.zeros((1, 3)), command, rel_goal=higher)
     assert out[0, 2] == pytest.approx(-4.0 * (0.4 - 0.3))
+    # Near the pad the surface is a cone with its tip 5 mm from the goal: 2 cm off centre, the drone may not
+    # come lower than 1.5 cm, so the last centimetres wait until it is centred.
+    near = np.array([[0.02, 0.0, 0.015]])
+    out, _ = filter_commands(near, np.zeros((1, 3)), command, rel_goal=near)
+    assert out[0, 2] == 0.0
+    centred = np.array([[0.0, 0.0, 0.015]])
+    out, _ = filter_commands(centred, np.zeros((1, 3)), command, rel_goal=centred)
+    assert out[0, 2] == pytest.approx(-4.0 * 0.015)  # over the centre it comes down, braked at gamma
 
 
 def test_wake_rule_parts_stacked_drones_horizontally() -> None:

@@ -240,9 +240,29 @@ def test_entry_rewards_are_each_drones_own_term_plus_the_shared_ones():
     np.testing.assert_allclose(reward, expected.reshape(-1), rtol=1e-6)
 
 
+def test_separation_aids_worked_by_hand():
+    # Three drones at rest in a row: 0 and 1 are 0.10 m apart (a collision, < 0.15 m), 2 is 0.20 m from 1.
+    def first_rewards(**aids):
+        env = SharedSwarmVecEnv((3,), 1, neighbours=2, seed=3, **aids)
+        env.reset()
+        sim = env.groups[0].sim
+        sim.pos[0] = [[0.0, 0.0, 1.0], [0.10, 0.0, 1.0], [0.30, 0.0, 1.0]]
+        sim.vel[0] = 0.0
+        return env.step(np.zeros((3, 3), dtype=np.float32))[1]
+
+    plain = first_rewards()
+    aided = first_rewards(collision_credit="involved", separation_penalty=10.0, separation_margin=0.22)
+    # Drones 0 and 1 are in the collision: they still pay alpha_c = 20, and 10 * (0.22 - 0.10) = 1.2 for
+    # flying inside the margin. Drone 2 is not in it: alpha_c comes back, and it pays 10 * (0.22 - 0.20) = 0.2.
+    np.testing.assert_allclose(aided - plain, [-1.2, -1.2, 20.0 - 0.2], atol=1e-4)
+
+
 @pytest.mark.parametrize(
     ("kwargs", "match"),
     [
+        ({"collision_credit": "team"}, "collision_credit must be 'swarm' or 'involved'"),
+        ({"separation_penalty": -1.0}, "separation_penalty must be a finite number >= 0"),
+        ({"separation_margin": 0.0}, "separation_margin must be a finite distance > 0 m"),
         ({"swarm_sizes": ()}, "swarm_sizes must be a non-empty"),
         ({"swarm_sizes": (2, 0)}, "swarm_sizes must be a non-empty"),
         ({"swarms_per_size": (1, 2, 3)}, "one per swarm size"),
@@ -261,6 +281,8 @@ def test_bad_shared_training_configs_are_refused():
         SharedTrainConfig(neighbours=0)
     with pytest.raises(ValueError, match="point-mass simulator only"):
         SharedTrainConfig(simulator="crazyflie")
+    with pytest.raises(ValueError, match="separation_penalty must be a finite number >= 0"):
+        SharedTrainConfig(separation_penalty=float("nan"))
     preset = SHARED_PRESETS["shared-quick"]
     assert SharedTrainConfig.from_dict(preset.to_dict()) == preset
     assert preset.swarms_per_size == (160, 80, 53, 40)
@@ -338,6 +360,26 @@ def test_a_small_budget_learns_to_land_three_drones(tmp_path):
     files = train_shared(config, tmp_path / "run")
     row = evaluate_cell("shared", 3, trials=60, seed=1, policy_path=files.policy, num_envs=60, task_changes=near_pads)
     assert row.summary.success_rate >= 0.3, row.summary
+
+
+def test_shared_training_applies_the_smoothness_and_separation_aids_it_records(tmp_path):
+    import csv
+    import json
+
+    from marlander_lite.swarm.train import train_shared
+
+    config = SHARED_PRESETS["shared-quick-local"].replace(
+        total_steps=4096, swarm_sizes=(2, 3), drones_per_size=32, n_steps=32, batch_size=512, seed=0,
+        smoothness_temporal=1.0, smoothness_spatial=1.0, neighbour_radius=0.5, collision_credit="involved",
+        separation_penalty=10.0,
+    )  # fmt: skip
+    files = train_shared(config, tmp_path / "run")
+    record = json.loads(files.config.read_text())["train"]
+    assert record["collision_credit"] == "involved" and record["separation_penalty"] == 10.0
+    assert record["smoothness_temporal"] == 1.0 and record["neighbour_radius"] == 0.5
+    with files.progress.open() as f:
+        losses = [float(row["train/smoothness_loss"]) for row in csv.DictReader(f) if row.get("train/smoothness_loss")]
+    assert losses and all(loss > 0 for loss in losses)  # CAPS added its gradient in every update after the first
 
 
 def test_centralised_tools_refuse_a_shared_policy_and_say_where_to_go(lander_file):

@@ -281,6 +281,9 @@ class SafetyFilterSection:
     cone_slope: Annotated[Real, Field(ge=0, le=10)] = _FILTER_DEFAULTS.cone_slope
     """Approach guard: no descent below ``cone_slope`` m of height per m of horizontal distance from the pad (up to
     0.3 m); 0: no guard."""
+    centring_gain: Annotated[Real, Field(ge=0, le=10)] = _FILTER_DEFAULTS.centring_gain
+    """Centring (1/s): over its pad and below 0.3 m, a drone's horizontal command gains this times its offset from
+    the pad centre, so that a policy hovering off-centre still lands on the centre; 0: no centring."""
 
     def __post_init__(self) -> None:
         self.filter_config()  # the filter's own checks, as a ConfigError naming this section

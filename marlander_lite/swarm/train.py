@@ -23,7 +23,7 @@ import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import torch
 from stable_baselines3.common.callbacks import CallbackList
@@ -34,6 +34,7 @@ from marlander_lite.swarm.vec_env import SharedSwarmVecEnv
 from marlander_lite.task import TaskConfig
 from marlander_lite.training.presets import ROBUST_DYNAMICS, TRAINING_AIDS, TrainConfig
 from marlander_lite.training.resume import make_logger
+from marlander_lite.training.smoothness import SmoothnessRegulariser
 from marlander_lite.training.train import CheckpointEvery, LandingStatsCallback, RunFiles, _new_model, check_new_run
 
 
@@ -50,6 +51,12 @@ class SharedTrainConfig(TrainConfig):
     """``k``: nearest neighbours in each drone's input."""
     neighbour_radius: float | None = None
     """Sensing range of the neighbour features (m); ``None``: the k nearest at any distance."""
+    collision_credit: Literal["swarm", "involved"] = "swarm"
+    """Training aid: ``"involved"`` charges eq. 6's penalty only to the drones in a collision (see SharedSwarmVecEnv)."""
+    separation_penalty: float = 0.0
+    """Training aid: reward lost per step per metre a flying drone's nearest neighbour is inside separation_margin."""
+    separation_margin: float = 0.22
+    """Distance (m) below which the separation aid charges a flying drone; below the 0.25 m pad spacing."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -62,6 +69,12 @@ class SharedTrainConfig(TrainConfig):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 problems.append(f"{name} must be an integer >= 1, got {value!r}")
+        if self.collision_credit not in ("swarm", "involved"):
+            problems.append(f"collision_credit must be 'swarm' or 'involved', got {self.collision_credit!r}")
+        if not (isinstance(self.separation_penalty, int | float) and 0 <= self.separation_penalty < float("inf")):
+            problems.append(f"separation_penalty must be a finite number >= 0, got {self.separation_penalty!r}")
+        if not (isinstance(self.separation_margin, int | float) and 0 < self.separation_margin < float("inf")):
+            problems.append(f"separation_margin must be a finite distance > 0 m, got {self.separation_margin!r}")
         if self.simulator != "pointmass":
             problems.append("shared policies train on the point-mass simulator only")
         if problems:
@@ -148,6 +161,9 @@ def make_shared_env(config: SharedTrainConfig, seed: int | None = None) -> Share
         dynamics=dict(config.dynamics) if config.dynamics else None,
         seed=config.seed if seed is None else seed,
         neighbour_radius=config.neighbour_radius,
+        collision_credit=config.collision_credit,
+        separation_penalty=config.separation_penalty,
+        separation_margin=config.separation_margin,
     )
 
 
@@ -177,7 +193,18 @@ def train_shared(config: SharedTrainConfig, out_dir: str | Path, *, preset: str 
         )
     model = _new_model(config, env)
     model.set_logger(make_logger(files.progress.parent, append=False))
-    callbacks = CallbackList([LandingStatsCallback(), CheckpointEvery(files.checkpoints, config.checkpoint_every)])
+    own: list[Any] = [LandingStatsCallback(), CheckpointEvery(files.checkpoints, config.checkpoint_every)]
+    if config.smoothness_temporal > 0 or config.smoothness_spatial > 0:
+        own.append(
+            SmoothnessRegulariser(
+                config.smoothness_temporal,
+                config.smoothness_spatial,
+                config.smoothness_noise,
+                batch_size=config.smoothness_batch_size or config.batch_size,
+                seed=config.seed,
+            )
+        )
+    callbacks = CallbackList(own)
     started = time.perf_counter()
     model.learn(config.total_steps, callback=callbacks, reset_num_timesteps=not config.init_from)
     seconds = time.perf_counter() - started

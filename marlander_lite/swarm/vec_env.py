@@ -17,6 +17,14 @@ grows with N and drowns the drone's own credit; the per-drone term keeps the ret
 same for 2 and 16 drones (one critic serves every size), and the shared terms keep what is
 cooperative about the task: a collision costs both drones, and every drone gains when the last one lands.
 
+**Separation aids (training only, not in the paper; off by default).** ``collision_credit="involved"``
+charges eq. 6's ``alpha_c`` only to the drones closer than ``collision_distance`` to another drone, not to the
+whole swarm: in a swarm of 8 a drone would otherwise pay for collisions it had no part in, and the penalty
+stops telling it what it did wrong. ``separation_penalty`` ``w`` takes ``w * max(0, d_s - d_i)`` per step
+from every flying drone whose nearest other drone is ``d_i < d_s`` (``separation_margin``) away: a dense
+signal before the sparse collision, with ``d_s`` below the 0.25 m pad spacing so that neighbours landing on
+adjacent pads cost nothing.
+
 **Episodes.** A swarm's episode ends for all its drones at once (eq. 4's termination: all landed, a
 crash, a collision, a drone out of the arena, or the time limit). Drones that landed earlier stay
 entries until then; their actions are ignored and they earn only the shared terms.
@@ -26,7 +34,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from types import MappingProxyType
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 from gymnasium import spaces
@@ -53,6 +61,10 @@ class SharedSwarmVecEnv(InProcessVecEnv):
             (``task`` a dict of :class:`TaskConfig` overrides; ``num_drones`` is set per group).
         seed: seeds group ``g`` with ``seed + g``.
         neighbour_radius: sensing range of the neighbour features (m); None: any distance.
+        collision_credit: ``"swarm"`` (eq. 6: every drone of the swarm pays ``alpha_c``) or ``"involved"``
+            (only the drones in the collision pay; a training aid).
+        separation_penalty: ``w >= 0`` of the separation aid (reward per metre inside ``separation_margin``).
+        separation_margin: ``d_s`` (m), the distance below which the separation aid charges a flying drone.
 
     Entries are ordered group by group, then swarm by swarm, then drone by drone. ``infos`` of a
     finished swarm's drone 0 carry the swarm's episode (``episode``: mean per-drone return and length,
@@ -73,7 +85,18 @@ class SharedSwarmVecEnv(InProcessVecEnv):
         dynamics: PointMassParams | dict | None = None,
         seed: int | None = None,
         neighbour_radius: float | None = None,
+        collision_credit: Literal["swarm", "involved"] = "swarm",
+        separation_penalty: float = 0.0,
+        separation_margin: float = 0.22,
     ) -> None:
+        if collision_credit not in ("swarm", "involved"):
+            raise ValueError(f"collision_credit must be 'swarm' or 'involved', got {collision_credit!r}.")
+        if not (np.isfinite(separation_penalty) and separation_penalty >= 0):
+            raise ValueError(f"separation_penalty must be a finite number >= 0, got {separation_penalty!r}.")
+        if not (np.isfinite(separation_margin) and separation_margin > 0):
+            raise ValueError(f"separation_margin must be a finite distance > 0 m, got {separation_margin!r}.")
+        self.collision_credit, self.separation_penalty = collision_credit, float(separation_penalty)
+        self.separation_margin = float(separation_margin)
         sizes = tuple(swarm_sizes)
         if not sizes or any(isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 1 for n in sizes):
             raise ValueError(f"swarm_sizes must be a non-empty sequence of integers >= 1, got {swarm_sizes!r}.")
@@ -149,6 +172,7 @@ class SharedSwarmVecEnv(InProcessVecEnv):
             n, e = self.swarm_sizes[g], self.swarms_per_size[g]
             lo, hi = int(self._slices[g]), int(self._slices[g + 1])
             outcome = episodes.step(actions[lo:hi].reshape(e, n, ACT_PER_DRONE))
+            rewards.append(self._separation_aids(episodes, outcome).reshape(-1))  # before the resets below
             group_obs = self._inputs(g, outcome.obs)
             done = outcome.done
             if done.any():
@@ -159,9 +183,29 @@ class SharedSwarmVecEnv(InProcessVecEnv):
                 group_obs[ids] = fresh
                 group_obs = group_obs.reshape(e * n, -1)
             obs.append(group_obs)
-            rewards.append(outcome.agent_rewards.reshape(-1))
             dones.append(np.repeat(done, n))
         return np.concatenate(obs), np.concatenate(rewards).astype(np.float32), np.concatenate(dones), infos
+
+    def _separation_aids(self, episodes: LandingEpisodes, outcome: StepOutcome) -> np.ndarray:
+        """``outcome.agent_rewards`` ``(E, N)`` with the separation aids of the module doc applied."""
+        rewards = outcome.agent_rewards
+        if self.collision_credit == "swarm" and not self.separation_penalty:
+            return rewards
+        pos = episodes.sim.state().pos  # true positions: the aids judge the flight, not its noisy measurement
+        gap = pos[:, None, :, :] - pos[:, :, None, :]
+        dist = np.sqrt(np.einsum("...k,...k->...", gap, gap))
+        n = pos.shape[1]
+        dist[:, np.arange(n), np.arange(n)] = np.inf
+        nearest = dist.min(axis=-1)  # (E, N)
+        rewards = rewards.copy()
+        if self.collision_credit == "involved":
+            alpha_c = self.task.alpha_c
+            rewards += alpha_c * outcome.collided[:, None]  # undo eq. 6's charge to the whole swarm ...
+            rewards -= alpha_c * (nearest < self.task.collision_distance)  # ... and charge the drones in it
+        if self.separation_penalty:
+            flying = ~outcome.landed | outcome.landed_now
+            rewards -= self.separation_penalty * np.maximum(self.separation_margin - nearest, 0.0) * flying
+        return rewards
 
     def _finish(
         self, infos: list[Any], lo: int, n: int, ids: np.ndarray, outcome: StepOutcome, entries: np.ndarray

@@ -1,0 +1,73 @@
+"""Rehearsal campaign: one lab config and one policy rehearsed over many seeds, landings and safety counted.
+
+``marlander deploy --sim`` rehearses one flight; the tables of docs/lab_guide.md ("Which policy to fly",
+"Flying N drones") need many. For each seed this runs :func:`~marlander_lite.deploy.rehearsal.rehearse`
+(no fault; the seed moves the start positions and the sensor noise) and prints one line per seed, then:
+
+* drones on their pads (touched down on their own pad under the policy) and rehearsals with all of them;
+* the landing error of those drones (cm from the pad centre), mean and range;
+* the closest two drones came at any physics step (simulator truth, m);
+* safe rehearsals: every drone inside the fence and down at rest or hovering at the end.
+
+Run::
+
+    python benchmarks/rehearsal_campaign.py --config marlander_lite/deploy/example_lab_8.yaml \\
+        --policy data/policies/shared-quick-local.safetensors --seeds 0-19 [--simulator pointmass] [--controller pid]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+import numpy as np
+
+from marlander_lite.deploy.config import load_lab_config
+from marlander_lite.deploy.rehearsal.run import rehearse
+
+
+def seed_range(text: str) -> list[int]:
+    """``"0-19"`` or ``"3"`` -> the seeds."""
+    first, _, last = text.partition("-")
+    return list(range(int(first), int(last or first) + 1))
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--config", required=True, help="lab config YAML")
+    parser.add_argument("--policy", required=True, help="policy file (.safetensors)")
+    parser.add_argument("--seeds", default="0-19", help="seed range, e.g. 0-19")
+    parser.add_argument("--simulator", default=None, choices=("crazyflie", "pointmass"), help="default: the lab's")
+    parser.add_argument("--controller", default=None, help="PyBullet tracker (firmware, pid); default: firmware")
+    args = parser.parse_args(argv)
+    lab = load_lab_config(args.config)
+    on_pad = all_down = safe = 0
+    drones, errors, closest = 0, [], math.inf
+    for seed in seed_range(args.seeds):
+        result = rehearse(lab, args.policy, simulator=args.simulator, seed=seed, controller=args.controller)
+        mission = result.mission
+        landed = int(np.sum(mission.on_pad))
+        drones += len(mission.on_pad)
+        on_pad += landed
+        all_down += bool(mission.success)
+        safe += result.safe
+        closest = min(closest, result.min_separation)
+        seed_errors = [100 * e for e in mission.landing_error if not math.isnan(e)]
+        errors += seed_errors
+        shown = ", ".join(f"{e:.1f}" for e in seed_errors)
+        print(
+            f"seed {seed:3d}: {landed}/{len(mission.on_pad)} on their pads ({shown} cm), phases {mission.phases}, "
+            f"closest {result.min_separation:.3f} m, safe {result.safe}",
+            flush=True,
+        )
+    runs = len(seed_range(args.seeds))
+    print(
+        f"drones on their pads: {on_pad} / {drones} ({100 * on_pad / drones:.1f} %); all landed in {all_down} of {runs}"
+    )
+    if errors:
+        print(f"landing error: mean {np.mean(errors):.2f} cm, {min(errors):.1f}-{max(errors):.1f} cm")
+    print(f"closest two drones: {closest:.3f} m; safe: {safe} of {runs}")
+
+
+if __name__ == "__main__":
+    main()
