@@ -52,7 +52,7 @@ class SharedTrainConfig(TrainConfig):
     neighbour_radius: float | None = None
     """Sensing range of the neighbour features (m); ``None``: the k nearest at any distance."""
     collision_credit: Literal["swarm", "involved"] = "swarm"
-    """Training aid: ``"involved"`` charges eq. 6's penalty only to the drones in a collision (see SharedSwarmVecEnv)."""
+    """Training aid: ``"involved"`` charges eq. 6's penalty only to the drones in a collision (SharedSwarmVecEnv)."""
     separation_penalty: float = 0.0
     """Training aid: reward lost per step per metre a flying drone's nearest neighbour is inside separation_margin."""
     separation_margin: float = 0.22
