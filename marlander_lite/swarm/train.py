@@ -34,7 +34,7 @@ from marlander_lite.swarm.vec_env import SharedSwarmVecEnv
 from marlander_lite.task import TaskConfig
 from marlander_lite.training.presets import ROBUST_DYNAMICS, TRAINING_AIDS, TrainConfig
 from marlander_lite.training.resume import make_logger
-from marlander_lite.training.smoothness import SmoothnessRegulariser
+from marlander_lite.training.smoothness import regulariser_for
 from marlander_lite.training.train import CheckpointEvery, LandingStatsCallback, RunFiles, _new_model, check_new_run
 
 
@@ -193,18 +193,9 @@ def train_shared(config: SharedTrainConfig, out_dir: str | Path, *, preset: str 
         )
     model = _new_model(config, env)
     model.set_logger(make_logger(files.progress.parent, append=False))
-    own: list[Any] = [LandingStatsCallback(), CheckpointEvery(files.checkpoints, config.checkpoint_every)]
-    if config.smoothness_temporal > 0 or config.smoothness_spatial > 0:
-        own.append(
-            SmoothnessRegulariser(
-                config.smoothness_temporal,
-                config.smoothness_spatial,
-                config.smoothness_noise,
-                batch_size=config.smoothness_batch_size or config.batch_size,
-                seed=config.seed,
-            )
-        )
-    callbacks = CallbackList(own)
+    callbacks = CallbackList(
+        [LandingStatsCallback(), CheckpointEvery(files.checkpoints, config.checkpoint_every), *regulariser_for(config)]
+    )
     started = time.perf_counter()
     model.learn(config.total_steps, callback=callbacks, reset_num_timesteps=not config.init_from)
     seconds = time.perf_counter() - started

@@ -137,6 +137,23 @@ class SmoothnessRegulariser(BaseCallback):
         self.losses.append(float(loss.detach()))
 
 
+def regulariser_for(config: Any) -> list[BaseCallback]:
+    """``[SmoothnessRegulariser]`` with a :class:`~marlander_lite.training.presets.TrainConfig`'s smoothness fields,
+    or ``[]`` when both weights are 0. A resumed run draws other pairs: close to, not bit-equal with, an uninterrupted
+    run."""
+    if config.smoothness_temporal <= 0 and config.smoothness_spatial <= 0:
+        return []
+    return [
+        SmoothnessRegulariser(
+            config.smoothness_temporal,
+            config.smoothness_spatial,
+            config.smoothness_noise,
+            batch_size=config.smoothness_batch_size or config.batch_size,
+            seed=config.seed,
+        )
+    ]
+
+
 def command_changes_near_pad(
     policy: MLPPolicy,
     *,

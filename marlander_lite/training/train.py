@@ -55,7 +55,7 @@ from marlander_lite.training.resume import (
     load_checkpoint,
     make_logger,
 )
-from marlander_lite.training.smoothness import SmoothnessRegulariser
+from marlander_lite.training.smoothness import regulariser_for
 
 ACTIVATIONS = {"relu": torch.nn.ReLU, "tanh": torch.nn.Tanh}
 
@@ -362,18 +362,7 @@ def _learn(
     stop = StopOnSignal()
     on_stop = CheckpointOnStop(stop, files.root / RESUME_DIR, config.simulator)
     checkpoints = CheckpointEvery(files.checkpoints, config.checkpoint_every)
-    own: list[BaseCallback] = [LandingStatsCallback(), checkpoints, on_stop]
-    if config.smoothness_temporal > 0 or config.smoothness_spatial > 0:
-        # A resumed run draws other pairs: close to, not bit-equal with, an uninterrupted run.
-        own.append(
-            SmoothnessRegulariser(
-                config.smoothness_temporal,
-                config.smoothness_spatial,
-                config.smoothness_noise,
-                batch_size=config.smoothness_batch_size or config.batch_size,
-                seed=config.seed,
-            )
-        )
+    own: list[BaseCallback] = [LandingStatsCallback(), checkpoints, on_stop, *regulariser_for(config)]
     everything = CallbackList([*own, *callbacks])
     started = time.perf_counter()
     with stop:
