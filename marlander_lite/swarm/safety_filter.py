@@ -46,14 +46,16 @@ as it comes down.
 **Centring.** Over its pad (within the pad radius) and below ``h_max``, a drone's horizontal command gains
 ``-k_c`` times its horizontal offset from the goal. A policy that hovers a few centimetres off its pad centre
 would otherwise wait at the approach guard until the flight time ran out; with the rule it is drawn to the
-centre and lands there. Together with the approach guard it is what brings the shared policy's landing error
+centre and lands there. It acts after the separation rule, at most ``k_c`` times the 0.1 m pad radius
+(0.2 m/s with the default), and a drone a neighbour's separation rule holds off its pad centre is drawn back
+towards it. Together with the approach guard it is what brings the shared policy's landing error
 under the paper's 2.26 cm: the learned policy alone lands 3.4 cm from the centre (docs/scaling.md).
 
 Measured with the shared policy, 200 trials, seed 0 (docs/scaling.md, where the tuning is described): at
-N = 8 on the point mass it lands 36 % of swarms alone (57.5 % end in a collision) and 97.5 % through this
-filter, without a collision; at N = 16, 7.5 % and 94.5 %; in PyBullet through the firmware's velocity
-tracker at N = 8 (100 trials), 22 % and 93 %. Only relative positions and velocities enter the separation
-and wake rules, so any common frame will do.
+N = 8 on the point mass it lands 36 % of swarms alone (57.5 % end in a collision) and 98.0 % through this
+filter, without a collision, 1.27 cm from the pad centres; at N = 16, 7.5 % and 95.5 %; in PyBullet through
+the firmware's velocity tracker at N = 8 (100 trials), 22 % and 98 %. Only relative positions and velocities
+enter the separation and wake rules, so any common frame will do.
 """
 
 from __future__ import annotations
