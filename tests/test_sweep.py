@@ -392,3 +392,21 @@ def test_shipped_artifacts_are_retrained_and_compared(tmp_path: Path) -> None:
     assert check_manifest(data) == ["tiny"]  # a shipped file changed after the manifest was written
     with pytest.raises(ValueError, match="Unknown shipped artifact"):
         check_shipped(["nope"], tmp_path / "check", data=data)
+
+
+def test_a_fine_tune_of_a_shipped_policy_file_is_retrained_from_that_file(tmp_path: Path) -> None:
+    from marlander_lite.training.shipped import shipped_artifacts
+    from marlander_lite.training.train import train
+
+    data = tmp_path / "data"
+    _ship(data, "tiny", train(TINY, tmp_path / "tiny", preset="quick-cpu").root)
+    record = json.loads((data / "runs" / "tiny" / "config.json").read_text())
+    for name, source in (("tuned", "data/policies/tiny.safetensors"), ("orphan", "/elsewhere/gone.safetensors")):
+        record["train"]["init_from"] = source
+        (data / "runs" / name).mkdir()
+        (data / "runs" / name / "config.json").write_text(json.dumps(record))
+        (data / "policies" / f"{name}.safetensors").write_bytes((data / "policies" / "tiny.safetensors").read_bytes())
+    found = {a.name: a for a in shipped_artifacts(data)}
+    assert found["tuned"].problem is None
+    assert found["tuned"].config["init_from"] == str(data / "policies" / "tiny.safetensors")
+    assert "gone.safetensors, which is not shipped" in found["orphan"].problem

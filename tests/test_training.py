@@ -148,6 +148,66 @@ def test_fine_tuning_continues_a_run_with_its_drones_observation_and_networks(tm
         continue_from(tiny(2048), tmp_path / "nothing")
 
 
+def test_fine_tuning_from_a_policy_file_starts_from_its_actor_and_statistics(tmp_path):
+    """A policy file holds no critic: the fine-tune starts with the file's actor and observation statistics (the
+    same actions to float32 precision), trains only the critic while warming up, then the actor too."""
+    from marlander_lite.training import warm_start
+    from marlander_lite.training.train import _new_model, _normalised_env, continue_from
+
+    source = train(tiny(2048, net_arch=(32, 16)), tmp_path / "one")
+    config = continue_from(tiny(4096, critic_warmup_steps=2048), source.policy)
+    assert config.init_from == str(source.policy) and tuple(config.net_arch) == (32, 16)
+    env = _normalised_env(config)
+    model = _new_model(config, env)
+    shipped = load_policy(source.policy)
+    obs = np.random.default_rng(0).normal(size=(16, shipped.contract.obs_dim))
+    mean_action = model.policy.predict(env.normalize_obs(obs), deterministic=True)[0]
+    np.testing.assert_allclose(mean_action, shipped.act(obs), atol=1e-5)
+    env.close()
+
+    class ActorWatch(BaseCallback):
+        """The actor's first weight when the warm-up ends, and at the end."""
+
+        def __init__(self) -> None:
+            super().__init__()
+            self.seen: list[tuple[int, np.ndarray]] = []
+
+        def _on_rollout_start(self) -> None:
+            weight = self.model.policy.mlp_extractor.policy_net[0].weight.detach().numpy().copy()
+            self.seen.append((self.num_timesteps, weight))
+
+        def _on_step(self) -> bool:
+            return True
+
+    watch = ActorWatch()
+    files = train(config, tmp_path / "tuned", callbacks=(watch,))
+    start = load_policy(source.policy).weights[0]
+    frozen = [w for steps, w in watch.seen if steps <= 2048]
+    assert len(frozen) == 2 and all(np.array_equal(w, start.astype(np.float32)) for w in frozen)
+    assert not np.array_equal(load_policy(files.policy).weights[0], start)  # then the actor learnt
+    assert json.loads(files.config.read_text())["train"]["init_from"] == str(source.policy)
+    with pytest.raises(ValueError, match="observation normalisation"):
+        continue_from(tiny(2048, normalize_observations=False), source.policy)
+    with pytest.raises(ValueError, match="critic_warmup_steps"):
+        tiny(2048, critic_warmup_steps=-1)
+    assert warm_start.is_policy_file(source.policy) and not warm_start.is_policy_file(source.root)
+
+
+def test_reset_log_std_sets_a_fine_tune_back_to_log_std_init(tmp_path):
+    from marlander_lite.training.train import _new_model, _normalised_env, continue_from
+
+    source = train(tiny(2048, log_std_init=-1.0), tmp_path / "one")
+    for reset, expected in ((False, -1.0), (True, -2.5)):
+        config = continue_from(tiny(2048, log_std_init=-2.5, reset_log_std=reset), source.root)
+        env = _normalised_env(config)
+        log_std = _new_model(config, env).policy.log_std.detach().numpy()
+        env.close()
+        if reset:
+            np.testing.assert_array_equal(log_std, expected)
+        else:  # 2048 steps of learning moved it a little from where it started
+            np.testing.assert_allclose(log_std, expected, atol=0.05)
+
+
 def test_periodic_checkpoints_of_a_fine_tuned_run_start_after_the_source_steps(tmp_path):
     from marlander_lite.training.train import continue_from
 

@@ -92,7 +92,12 @@ class TrainConfig:
     seed: int = 0
     """Seeds the environments, the network initialisation and the sampling."""
     init_from: str | None = None
-    """A run directory to continue from (fine-tuning): its model and normaliser are loaded."""
+    """A run directory to continue from (fine-tuning): its model and normaliser are loaded. Or a centralised
+    policy file (``.safetensors``): its actor and observation statistics are loaded, the critic starts afresh
+    (:mod:`~marlander_lite.training.warm_start`)."""
+    critic_warmup_steps: int = 0
+    """Fine-tuning aid: train only the critic for this many steps first (the actor is frozen). For ``init_from`` a
+    policy file, which holds no critic."""
     torch_threads: int = 2
     """CPU threads for torch."""
     checkpoint_every: int = 1_000_000
@@ -121,6 +126,8 @@ class TrainConfig:
             problems.append(f"activation must be one of {get_args(Activation)}, got {self.activation!r}")
         if self.lr_schedule not in get_args(Schedule):
             problems.append(f"lr_schedule must be one of {get_args(Schedule)}, got {self.lr_schedule!r}")
+        if not isinstance(self.critic_warmup_steps, int) or self.critic_warmup_steps < 0:
+            problems.append(f"critic_warmup_steps must be an integer >= 0, got {self.critic_warmup_steps!r}")
         for name in ("total_steps", "num_envs", "n_steps", "batch_size", "n_epochs", "num_drones", "torch_threads"):
             if not isinstance(getattr(self, name), int) or getattr(self, name) < 1:
                 problems.append(f"{name} must be an integer >= 1, got {getattr(self, name)!r}")

@@ -73,7 +73,12 @@ def shipped_artifacts(data: str | Path = "data") -> list[ShippedArtifact]:
             record = json.loads((run / "config.json").read_text())
             preset, config = record.get("preset"), dict(record["train"])
             source = config.get("init_from")
-            if source is not None:
+            if source is not None and Path(source).suffix == ".safetensors":  # a shipped policy file
+                shipped_source = data / "policies" / Path(source).name
+                if not shipped_source.is_file():
+                    problem = f"it continues the policy {source}, which is not shipped"
+                config["init_from"] = str(shipped_source)
+            elif source is not None:
                 shipped_source = data / "runs" / Path(source).name
                 if not (shipped_source / "model.zip").is_file():
                     problem = f"it continues {source}, whose model (model.zip) is not shipped"

@@ -125,8 +125,8 @@ class SmoothnessRegulariser(BaseCallback):
 
     def _add_gradient(self) -> None:
         """Accumulate ``grad L`` into the actor's ``.grad``, on top of PPO's loss gradient."""
-        if self.pairs is None:
-            return
+        if self.pairs is None or not self.model.policy.action_net.weight.requires_grad:
+            return  # no pairs yet, or the actor is frozen (warm_start.CriticWarmup)
         obs_now, obs_next = self.pairs
         pick = self.rng.integers(len(obs_now), size=min(self.batch_size, len(obs_now)))
         device = self.model.policy.device

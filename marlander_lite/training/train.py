@@ -43,6 +43,7 @@ from marlander_lite.envs.options import EnvOptions
 from marlander_lite.make import make_vec_env
 from marlander_lite.platforms import PlatformConfig
 from marlander_lite.task import TaskConfig
+from marlander_lite.training import warm_start
 from marlander_lite.training.export import export_policy
 from marlander_lite.training.presets import TrainConfig
 from marlander_lite.training.provenance import code_version, policy_digest
@@ -206,7 +207,12 @@ def read_run_record(files: RunFiles, option: str) -> dict[str, Any]:
 
 
 def continue_from(config: TrainConfig, run_dir: str | Path) -> TrainConfig:
-    """``config`` set to fine-tune the run in ``run_dir``: its drone count, observation layout and networks are kept."""
+    """``config`` set to fine-tune the run in ``run_dir``: its drone count, observation layout and networks are kept.
+
+    ``run_dir`` may also be a policy file (``.safetensors``): see :func:`warm_start.continue_from_policy`.
+    """
+    if warm_start.is_policy_file(run_dir):
+        return warm_start.continue_from_policy(config, run_dir)
     files = RunFiles(Path(run_dir))
     if not files.config.is_file() or not files.model.is_file():
         raise FileNotFoundError(
@@ -305,18 +311,21 @@ def resume(run_dir: str | Path, *, progress_bar: bool = False, callbacks: tuple[
 def _normalised_env(config: TrainConfig) -> VecNormalize:
     """The training environments, with running observation/reward normalisation."""
     env = make_training_env(config)
-    if config.init_from:
+    if config.init_from and not warm_start.is_policy_file(config.init_from):
         source = RunFiles(Path(config.init_from))
         env = VecNormalize.load(str(source.normalizer), env)
         env.training, env.norm_reward = True, config.normalize_rewards
         return env
-    return VecNormalize(
+    normalised = VecNormalize(
         env,
         norm_obs=config.normalize_observations,
         norm_reward=config.normalize_rewards,
         gamma=config.gamma,
         epsilon=config.obs_norm_epsilon,
     )
+    if config.init_from:  # a policy file: its observation statistics
+        warm_start.seed_normaliser(normalised, config.init_from)
+    return normalised
 
 
 def _new_model(config: TrainConfig, env: VecNormalize) -> PPO:
@@ -334,17 +343,24 @@ def _new_model(config: TrainConfig, env: VecNormalize) -> PPO:
         "max_grad_norm": config.max_grad_norm,
         "target_kl": config.target_kl,
     }
-    if config.init_from:
-        return PPO.load(
+    if config.init_from and not warm_start.is_policy_file(config.init_from):
+        loaded = PPO.load(
             RunFiles(Path(config.init_from)).model, env=env, device="cpu", seed=config.seed, custom_objects=hyper
         )
+        if config.reset_log_std:
+            with torch.no_grad():
+                loaded.policy.log_std.fill_(config.log_std_init)
+        return loaded
     critic = config.net_arch if config.critic_arch is None else config.critic_arch
     policy_kwargs = {
         "net_arch": {"pi": list(config.net_arch), "vf": list(critic)},
         "activation_fn": ACTIVATIONS[config.activation],
         "log_std_init": config.log_std_init,
     }
-    return PPO("MlpPolicy", env, policy_kwargs=policy_kwargs, seed=config.seed, device="cpu", **hyper)
+    model = PPO("MlpPolicy", env, policy_kwargs=policy_kwargs, seed=config.seed, device="cpu", **hyper)
+    if config.init_from:  # a policy file: its actor, a fresh critic
+        warm_start.load_actor(model, config.init_from)
+    return model
 
 
 def _learn(
@@ -363,6 +379,8 @@ def _learn(
     on_stop = CheckpointOnStop(stop, files.root / RESUME_DIR, config.simulator)
     checkpoints = CheckpointEvery(files.checkpoints, config.checkpoint_every)
     own: list[BaseCallback] = [LandingStatsCallback(), checkpoints, on_stop, *regulariser_for(config)]
+    if config.critic_warmup_steps:
+        own.append(warm_start.CriticWarmup(config.critic_warmup_steps))
     everything = CallbackList([*own, *callbacks])
     started = time.perf_counter()
     with stop:
