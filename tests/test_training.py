@@ -148,6 +148,28 @@ def test_fine_tuning_continues_a_run_with_its_drones_observation_and_networks(tm
         continue_from(tiny(2048), tmp_path / "nothing")
 
 
+class ActorWatch(BaseCallback):
+    """The actor's first weight at the start of every rollout, with the step count."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.seen: list[tuple[int, np.ndarray]] = []
+
+    def _on_rollout_start(self) -> None:
+        weight = self.model.policy.mlp_extractor.policy_net[0].weight.detach().numpy().copy()
+        self.seen.append((self.num_timesteps, weight))
+
+    def _on_step(self) -> bool:
+        return True
+
+
+def torch_first_weight(run) -> np.ndarray:
+    """The first actor layer's weight of a finished run's model, as the model holds it (float32)."""
+    from stable_baselines3 import PPO
+
+    return PPO.load(run.model, device="cpu").policy.mlp_extractor.policy_net[0].weight.detach().numpy()
+
+
 def test_fine_tuning_from_a_policy_file_starts_from_its_actor_and_statistics(tmp_path):
     """A policy file holds no critic: the fine-tune starts with the file's actor and observation statistics (the
     same actions to float32 precision), trains only the critic while warming up, then the actor too."""
@@ -165,20 +187,6 @@ def test_fine_tuning_from_a_policy_file_starts_from_its_actor_and_statistics(tmp
     np.testing.assert_allclose(mean_action, shipped.act(obs), atol=1e-5)
     env.close()
 
-    class ActorWatch(BaseCallback):
-        """The actor's first weight when the warm-up ends, and at the end."""
-
-        def __init__(self) -> None:
-            super().__init__()
-            self.seen: list[tuple[int, np.ndarray]] = []
-
-        def _on_rollout_start(self) -> None:
-            weight = self.model.policy.mlp_extractor.policy_net[0].weight.detach().numpy().copy()
-            self.seen.append((self.num_timesteps, weight))
-
-        def _on_step(self) -> bool:
-            return True
-
     watch = ActorWatch()
     files = train(config, tmp_path / "tuned", callbacks=(watch,))
     start = load_policy(source.policy).weights[0]
@@ -191,6 +199,21 @@ def test_fine_tuning_from_a_policy_file_starts_from_its_actor_and_statistics(tmp
     with pytest.raises(ValueError, match="critic_warmup_steps"):
         tiny(2048, critic_warmup_steps=-1)
     assert warm_start.is_policy_file(source.policy) and not warm_start.is_policy_file(source.root)
+
+
+def test_critic_warmup_counts_from_the_runs_own_start(tmp_path):
+    """A fine-tune of a run directory counts its steps on from the source's: the warm-up still starts at zero."""
+    from marlander_lite.training.train import continue_from
+
+    source = train(tiny(2048), tmp_path / "one")
+    start = torch_first_weight(source)
+    watch = ActorWatch()
+    config = continue_from(tiny(4096, critic_warmup_steps=2048), source.root)
+    tuned = train(config, tmp_path / "tuned", callbacks=(watch,))
+    # Rollouts start at 2048 (frozen: only the critic learns from it) and 4096 (released): both see the source's actor.
+    assert [steps for steps, _ in watch.seen] == [2048, 4096]
+    assert all(np.array_equal(w, start) for _, w in watch.seen)
+    assert not np.array_equal(torch_first_weight(tuned), start)  # the update after the second rollout moved it
 
 
 def test_reset_log_std_sets_a_fine_tune_back_to_log_std_init(tmp_path):

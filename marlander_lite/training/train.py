@@ -379,8 +379,9 @@ def _learn(
     on_stop = CheckpointOnStop(stop, files.root / RESUME_DIR, config.simulator)
     checkpoints = CheckpointEvery(files.checkpoints, config.checkpoint_every)
     own: list[BaseCallback] = [LandingStatsCallback(), checkpoints, on_stop, *regulariser_for(config)]
-    if config.critic_warmup_steps:
-        own.append(warm_start.CriticWarmup(config.critic_warmup_steps))
+    if config.critic_warmup_steps:  # counted from the run's first step, also when it is resumed
+        run_start = model.num_timesteps if target is None else target - config.total_steps
+        own.append(warm_start.CriticWarmup(config.critic_warmup_steps, run_start))
     everything = CallbackList([*own, *callbacks])
     started = time.perf_counter()
     with stop:

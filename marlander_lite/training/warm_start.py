@@ -1,10 +1,10 @@
 """Fine-tuning from a policy file: when the run that made a policy is not shipped, only its actor is.
 
 A shipped policy whose run folder holds no ``model.zip`` (the paper's 512-wide network: its SB3 model with Adam
-state is 7 MB) can still be trained further. ``marlander train --init-from POLICY.safetensors`` builds a fresh PPO
+state is 6.4 MB) can still be trained further. ``marlander train --init-from POLICY.safetensors`` builds a fresh PPO
 model of the policy's shape and copies into it what the file holds:
 
-* the actor's layers (``actor.{i}.weight/bias``), so the mean action is the shipped policy's to the last bit;
+* the actor's layers (``actor.{i}.weight/bias``), bit for bit, so the mean action is the shipped policy's;
 * the observation statistics (``obs_mean``, ``obs_var``), given the weight of the steps the policy trained for, so
   the running normaliser keeps feeding the actor the inputs it was trained on instead of relearning them.
 
@@ -95,13 +95,15 @@ def load_actor(model: PPO, policy_path: str | Path) -> None:
 class CriticWarmup(BaseCallback):
     """Freeze the actor (layers and log standard deviation) for the first ``steps`` environment steps of a run.
 
-    Frozen parameters get no gradient, so PPO's update changes only the critic (the actor and critic are separate
-    networks here). The actor is released at the first rollout that starts past ``steps``.
+    ``run_start`` is the model's step count when the run began (a fine-tune of a run directory counts on from its
+    source; a run resumed after an interrupt is still judged from its own start). Frozen parameters get no
+    gradient, so PPO's update changes only the critic (the actor and critic are separate networks here). The actor
+    is released at the first rollout that starts ``steps`` or more after ``run_start``.
     """
 
-    def __init__(self, steps: int) -> None:
+    def __init__(self, steps: int, run_start: int = 0) -> None:
         super().__init__()
-        self.steps, self.frozen, self._start = steps, False, 0
+        self.steps, self.run_start, self.frozen = steps, run_start, False
 
     def _actor_parameters(self) -> list[torch.nn.Parameter]:
         policy = self.model.policy
@@ -112,13 +114,14 @@ class CriticWarmup(BaseCallback):
             parameter.requires_grad_(not frozen)
         self.frozen = frozen
 
+    def _warming_up(self) -> bool:
+        return self.num_timesteps - self.run_start < self.steps
+
     def _on_training_start(self) -> None:
-        self._start = self.num_timesteps
-        if self.steps > 0:
-            self._set(True)
+        self._set(self._warming_up())
 
     def _on_rollout_start(self) -> None:
-        if self.frozen and self.num_timesteps - self._start >= self.steps:
+        if self.frozen and not self._warming_up():
             self._set(False)
 
     def _on_step(self) -> bool:
