@@ -36,6 +36,19 @@ def shared_obs_size(neighbours: int, obs_per_drone: int = OBS_PER_DRONE) -> int:
     return obs_per_drone + NEIGHBOUR_FEATURES * neighbours
 
 
+def pairwise_offsets(pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Offsets and squared distances between the drones of each swarm.
+
+    ``pos`` ``(..., N, 3)`` m; returns ``rel[..., i, j] = x_j - x_i`` ``(..., N, N, 3)`` and its squared norm
+    ``(..., N, N)`` with ``inf`` on the diagonal: a drone is not its own neighbour.
+    """
+    rel = pos[..., None, :, :] - pos[..., :, None, :]
+    dist_sq = np.einsum("...k,...k->...", rel, rel)
+    n = pos.shape[-2]
+    dist_sq[..., np.arange(n), np.arange(n)] = np.inf
+    return rel, dist_sq
+
+
 def neighbour_features(
     obs: np.ndarray, pad_offsets: np.ndarray, neighbours: int, radius: float | None = None
 ) -> np.ndarray:
@@ -65,10 +78,8 @@ def neighbour_features(
     out = np.zeros((*lead, n, neighbours, NEIGHBOUR_FEATURES))
     if n > 1:
         pos = obs[..., EQ2_POSITION] + offsets  # plate-relative positions (plus the common goal lift)
-        rel_pos = pos[..., None, :, :] - pos[..., :, None, :]  # [..., i, j] = x_j - x_i
+        rel_pos, dist = pairwise_offsets(pos)
         rel_vel = obs[..., None, :, EQ2_VELOCITY] - obs[..., :, None, EQ2_VELOCITY]
-        dist = np.einsum("...k,...k->...", rel_pos, rel_pos)
-        dist[..., np.arange(n), np.arange(n)] = np.inf  # a drone is not its own neighbour
         # A stable sort, so that equal distances keep the drones' order (ties have measure zero in flight).
         order = np.argsort(dist, axis=-1, kind="stable")[..., : min(neighbours, n - 1)]
         m = order.shape[-1]

@@ -44,7 +44,7 @@ from marlander_lite.envs.vec_env import InProcessVecEnv
 from marlander_lite.episodes import LandingEpisodes, StepOutcome
 from marlander_lite.pointmass.envs import build_simulator
 from marlander_lite.pointmass.simulator import PointMassParams
-from marlander_lite.swarm.observation import shared_obs_size, shared_observations
+from marlander_lite.swarm.observation import pairwise_offsets, shared_obs_size, shared_observations
 from marlander_lite.task import ACT_PER_DRONE, OBS_LIMITS, TaskConfig
 
 _NO_INFO = MappingProxyType({})
@@ -192,11 +192,7 @@ class SharedSwarmVecEnv(InProcessVecEnv):
         if self.collision_credit == "swarm" and not self.separation_penalty:
             return rewards
         pos = episodes.sim.state().pos  # true positions: the aids judge the flight, not its noisy measurement
-        gap = pos[:, None, :, :] - pos[:, :, None, :]
-        dist = np.sqrt(np.einsum("...k,...k->...", gap, gap))
-        n = pos.shape[1]
-        dist[:, np.arange(n), np.arange(n)] = np.inf
-        nearest = dist.min(axis=-1)  # (E, N)
+        nearest = np.sqrt(pairwise_offsets(pos)[1].min(axis=-1))  # (E, N); sqrt is monotone: the nearest's distance
         rewards = rewards.copy()
         if self.collision_credit == "involved":
             alpha_c = self.task.alpha_c
