@@ -251,15 +251,16 @@ def observe(
     Each part is clipped to :data:`OBS_LIMITS`; a unit quaternion is within ``[-1, 1]`` already.
     """
     p_max, _, v_max, w_max = OBS_LIMITS
-    parts = [
-        np.clip(rel_pos, -p_max, p_max),
-        quat,
-        np.clip(rel_vel, -v_max, v_max),
-        np.clip(ang_vel, -w_max, w_max),
-    ]
+    # Row-major, a drone's numbers side by side as the policy reads them: the simulators' arrays put the env index
+    # fastest, and a concatenation would keep that layout and leave the transposition to each policy input.
+    out = np.empty(np.shape(rel_pos)[:-1] + (OBS_PER_DRONE + (0 if pad_vel is None else 3),))
+    np.clip(rel_pos, -p_max, p_max, out=out[..., 0:3])
+    out[..., 3:7] = quat
+    np.clip(rel_vel, -v_max, v_max, out=out[..., 7:10])
+    np.clip(ang_vel, -w_max, w_max, out=out[..., 10:13])
     if pad_vel is not None:
-        parts.append(np.clip(pad_vel, -v_max, v_max))
-    return np.concatenate(parts, axis=-1)
+        np.clip(pad_vel, -v_max, v_max, out=out[..., 13:16])
+    return out
 
 
 def flatten_observations(obs: np.ndarray) -> np.ndarray:
@@ -339,21 +340,21 @@ def min_separation(pos: np.ndarray) -> np.ndarray:
     answers instead (:func:`marlander_lite.pointmass.kernels.min_separation`): with 16 drones this is the
     costliest line of a step, 120 pairs, and of every spawn draw.
     """
-    kernel = _compiled_min_separation()
-    if kernel is not None and pos.ndim == 3 and pos.shape[-1] == 3 and pos.dtype == np.float64:
-        return kernel(pos)
+    kernels = _compiled_kernels()
+    if kernels is not None and pos.ndim == 3 and pos.shape[-1] == 3 and pos.dtype == np.float64:
+        return kernels.min_separation(pos)
     return min_separation_numpy(pos)
 
 
-def _compiled_min_separation() -> Any:
-    """The compiled kernel, or None when numba is missing or ``MARLANDER_LITE_ENGINE=numpy`` is set now."""
+def _compiled_kernels() -> Any:
+    """The compiled kernels' module, or None when numba is missing or ``MARLANDER_LITE_ENGINE=numpy`` is set now."""
     global _KERNELS
     if _KERNELS is None:
         # Imported here, not at the top: marlander_lite.pointmass itself imports this module.
         from marlander_lite.pointmass import kernels
 
         _KERNELS = kernels
-    return _KERNELS.min_separation if _KERNELS.resolve_engine("auto") == "numba" else None
+    return _KERNELS if _KERNELS.resolve_engine("auto") == "numba" else None
 
 
 _KERNELS: Any = None
@@ -463,12 +464,19 @@ def sample_spawn_positions(
             u[near] = pads[ids[near]] + offset
         return u
 
-    pos = draw(np.arange(n))
-    for _ in range(max_tries):
-        redo = np.flatnonzero(min_separation(pos) < config.spawn_separation)
-        if len(redo) == 0:
+    if _compiled_kernels() is not None:
+        from marlander_lite.pointmass import spawn_kernels  # here, not at the top: no import cycle
+
+        pos = spawn_kernels.sample_spawn_positions(rng, z_lo, z_hi, near_pad, pads, config, max_tries)
+        if pos is not None:
             return pos
-        pos[redo] = draw(redo)
+    else:
+        pos = draw(np.arange(n))
+        for _ in range(max_tries):
+            redo = np.flatnonzero(min_separation(pos) < config.spawn_separation)
+            if len(redo) == 0:
+                return pos
+            pos[redo] = draw(redo)
     raise ValueError(
         f"Could not place {config.num_drones} drones {config.spawn_separation} m apart in the arena after "
         f"{max_tries} tries; lower spawn_separation or enlarge the arena."

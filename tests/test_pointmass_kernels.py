@@ -48,6 +48,36 @@ def test_min_separation_kernel_propagates_nan_and_inf_like_numpy():
     assert np.isnan(ours[[1, 3]]).all() and np.isfinite(ours[[0, 2]]).all()
 
 
+def spawn(monkeypatch, engine, num_drones, near_fraction, separation, swarms=60, seed=3):
+    """Starting positions of ``swarms`` swarms over plates of random heights with pads 0.25 m apart (near-pad
+    starts included), and the next numbers of the generator, drawn through ``engine``."""
+    monkeypatch.setenv(kernels.ENGINE_VARIABLE, engine)
+    rng = np.random.default_rng(seed)
+    cfg = TaskConfig(num_drones=num_drones, spawn_near_pad_fraction=near_fraction, spawn_separation=separation)
+    grid = np.stack([0.25 * (np.arange(num_drones) % 4), 0.25 * (np.arange(num_drones) // 4), np.zeros(num_drones)], -1)
+    pads = rng.uniform(-1, 1, (swarms, 1, 3)) + grid
+    pos = task.sample_spawn_positions(rng, rng.uniform(0, 0.8, swarms), cfg, pads)
+    return pos, rng.random(5)
+
+
+@pytest.mark.parametrize("num_drones", [1, 2, 3, 16])
+@pytest.mark.parametrize("near_fraction", [0.0, 0.25, 1.0])
+def test_compiled_spawn_sampler_is_the_reference_to_the_last_bit(monkeypatch, num_drones, near_fraction):
+    separation = 0.5 if near_fraction == 0 else 0.2  # 16 drones near pads 0.25 m apart cannot be 0.5 m apart
+    pos, after = spawn(monkeypatch, "numpy", num_drones, near_fraction, separation)
+    compiled_pos, compiled_after = spawn(monkeypatch, "numba", num_drones, near_fraction, separation)
+    np.testing.assert_array_equal(compiled_pos, pos)
+    np.testing.assert_array_equal(compiled_after, after)  # the generator is left in the same state
+    if num_drones > 1:  # and the placement is what the task asks for, measured independently
+        assert brute_force_min_separation(pos).min() >= separation
+
+
+def test_both_spawn_samplers_give_up_alike(monkeypatch):
+    for engine in ("numpy", "numba"):
+        with pytest.raises(ValueError, match=r"Could not place 16 drones 1.5 m apart .* after 100 tries"):
+            spawn(monkeypatch, engine, 16, 0.0, 1.5)
+
+
 def go_to_pad(obs: np.ndarray, num_drones: int) -> np.ndarray:
     """Fly down a cone onto the own pad (lands most drones), as in tests/test_pointmass.py."""
     p = obs.reshape(len(obs), num_drones, -1)[..., 0:3].copy()
