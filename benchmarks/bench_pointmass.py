@@ -11,6 +11,8 @@ so that a background load hits both alike. Two clocks: wall time (``perf_counter
 and CPU time of this process (``process_time``), far less sensitive to other processes on a shared machine.
 The ratio column is numba over numpy, measured in this run. The first line reports what the first numba
 step costs in this process: the compile on a machine's first run, loading numba's disk cache afterwards.
+The last lines time the starting-position sampler alone (``task.sample_spawn_positions`` for as many swarms as
+a step resets): the numpy reference's rejection loop against the compiled one, which draws the same numbers.
 
     python benchmarks/bench_pointmass.py [--repeats 5] [--steps-scale 1.0]
 """
@@ -21,11 +23,13 @@ import argparse
 import os
 import statistics
 import time
+import timeit
 
 import numpy as np
 
 import marlander_lite
 from marlander_lite.pointmass import kernels
+from marlander_lite.task import TaskConfig, sample_spawn_positions
 
 SIZES = ((4096, 2), (1024, 16))
 
@@ -59,6 +63,15 @@ def first_step_seconds() -> float:
     for num_envs, num_drones in SIZES:
         make_env(num_envs, num_drones, "numba").step(np.zeros((num_envs, 3 * num_drones), np.float32))
     return time.perf_counter() - start
+
+
+def spawn_milliseconds(num_drones: int, swarms: int, engine: str, repeats: int) -> float:
+    """Best of ``repeats`` mean times (ms) of one ``sample_spawn_positions`` call for ``swarms`` swarms."""
+    os.environ[kernels.ENGINE_VARIABLE] = engine
+    config, plate_top, rng = TaskConfig(num_drones=num_drones), np.zeros(swarms), np.random.default_rng(0)
+    sample_spawn_positions(rng, plate_top, config)  # compile or load the cache first
+    runs = timeit.repeat(lambda: sample_spawn_positions(rng, plate_top, config), number=20, repeat=repeats)
+    return 1e3 * min(runs) / 20
 
 
 def main() -> None:
@@ -96,6 +109,14 @@ def main() -> None:
             wall_ratio, cpu_ratio = (rates["numba"][i] / rates["numpy"][i] for i in range(2))
             print(f"{'':>13}numba / numpy: {wall_ratio:.2f}x wall, {cpu_ratio:.2f}x CPU")
     print("M/s: million drone-steps per second (envs x drones / step time). Target: >= 5 at both sizes.")
+    if len(engines) == 2:
+        print("starting positions for 100 swarms (one step's resets), best of the runs, ms per call:")
+        for num_drones in (2, 8, 16):
+            times = {engine: spawn_milliseconds(num_drones, 100, engine, args.repeats) for engine in engines}
+            print(
+                f"  {num_drones:>2} drones: numpy {times['numpy']:.3f}, numba {times['numba']:.3f} "
+                f"({times['numpy'] / times['numba']:.1f}x)"
+            )
 
 
 if __name__ == "__main__":

@@ -251,16 +251,15 @@ def observe(
     Each part is clipped to :data:`OBS_LIMITS`; a unit quaternion is within ``[-1, 1]`` already.
     """
     p_max, _, v_max, w_max = OBS_LIMITS
-    # Row-major, a drone's numbers side by side as the policy reads them: the simulators' arrays put the env index
-    # fastest, and a concatenation would keep that layout and leave the transposition to each policy input.
-    out = np.empty(np.shape(rel_pos)[:-1] + (OBS_PER_DRONE + (0 if pad_vel is None else 3),))
-    np.clip(rel_pos, -p_max, p_max, out=out[..., 0:3])
-    out[..., 3:7] = quat
-    np.clip(rel_vel, -v_max, v_max, out=out[..., 7:10])
-    np.clip(ang_vel, -w_max, w_max, out=out[..., 10:13])
+    parts = [
+        np.clip(rel_pos, -p_max, p_max),
+        quat,
+        np.clip(rel_vel, -v_max, v_max),
+        np.clip(ang_vel, -w_max, w_max),
+    ]
     if pad_vel is not None:
-        np.clip(pad_vel, -v_max, v_max, out=out[..., 13:16])
-    return out
+        parts.append(np.clip(pad_vel, -v_max, v_max))
+    return np.concatenate(parts, axis=-1)
 
 
 def flatten_observations(obs: np.ndarray) -> np.ndarray:
@@ -435,7 +434,8 @@ def sample_spawn_positions(
     ``spawn_clearance`` above the plate top) and ``spawn_ceiling_margin`` below the ceiling.
     With ``spawn_near_pad_fraction`` > 0 (a training aid) that fraction of environments starts
     near the pads ``pads`` ``(k, N, 3)`` instead. Draws are repeated until every pair of drones
-    is ``spawn_separation`` apart.
+    is ``spawn_separation`` apart. With the compiled engine on, :mod:`marlander_lite.pointmass.spawn_kernels` runs
+    this loop, drawing the same numbers from ``rng`` (a dozen rounds per reset at 16 drones).
     """
     n, w = len(plate_top), config.arena_half_width
     z_lo = np.maximum(config.spawn_height_min, plate_top + config.spawn_clearance)

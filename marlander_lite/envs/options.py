@@ -208,4 +208,4 @@ def centralised_action_space(num_drones: int) -> spaces.Box:
 
 def policy_input(obs: np.ndarray) -> np.ndarray:
     """``(num_envs, N, 13)`` observations as a float32 ``(num_envs, 13 N)`` array (row-major: one env per row)."""
-    return obs.astype(np.float32, order="C").reshape(obs.shape[0], -1)  # one pass: cast and row-major copy
+    return obs.astype(np.float32, order="K").reshape(obs.shape[0], -1)
