@@ -18,7 +18,7 @@ from marlander_lite.swarm.observation import NEIGHBOUR_FEATURES, neighbour_featu
 from marlander_lite.swarm.policy import SharedPolicy
 from marlander_lite.swarm.train import SHARED_PRESETS, SharedTrainConfig
 from marlander_lite.swarm.vec_env import SharedSwarmVecEnv
-from marlander_lite.task import TaskConfig
+from marlander_lite.task import TaskConfig, min_separation
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -257,6 +257,45 @@ def test_separation_aids_worked_by_hand():
     np.testing.assert_allclose(aided - plain, [-1.2, -1.2, 20.0 - 0.2], atol=1e-4)
 
 
+def test_the_shield_keeps_drones_apart_in_training_and_charges_exactly_its_corrections():
+    """Two drones 0.4 m apart commanded head-on at full speed: they collide unshielded, and do not with the
+    shield; the shield penalty is w_s times the command change that filter_commands makes on the true state."""
+    from marlander_lite.swarm.safety_filter import SafetyFilterConfig, filter_commands, settled_drones
+
+    def fly(steps, **shield):
+        env = SharedSwarmVecEnv((2,), 1, neighbours=1, seed=3, **shield)
+        env.reset()
+        sim = env.groups[0].sim
+        sim.pos[0] = [[-0.2, 0.0, 1.5], [0.2, 0.0, 1.5]]
+        sim.vel[0] = 0.0
+        env.step(np.zeros((2, 3), dtype=np.float32))  # the drones hover where placed; the shield sees them there
+        truth = env.groups[0].true_observations()[0]
+        head_on = np.array([[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0]], dtype=np.float32)
+        rewards, separations = [], []
+        for _ in range(steps):
+            _, reward, done, infos = env.step(head_on)
+            rewards.append(reward)
+            separations.append(infos[0]["min_separation"] if done[0] else float(min_separation(sim.pos)[0]))
+            if done[0]:
+                break
+        return truth, rewards, separations, head_on
+
+    _, _, unshielded, _ = fly(15)
+    assert min(unshielded) < 0.15  # eq. 6's collision distance
+    _, shielded_rewards, shielded, _ = fly(15, shield=SafetyFilterConfig())
+    assert len(shielded) == 15 and min(shielded) > 0.15
+    truth, charged, _, head_on = fly(1, shield=SafetyFilterConfig(), shield_penalty=2.0)
+    config, max_speed = SafetyFilterConfig(), TaskConfig().max_speed
+    rel_goal, vel = truth[:, :3], truth[:, 7:10]
+    pos = SharedSwarmVecEnv((2,), 1).pad_offsets[0] + rel_goal
+    u, acted = filter_commands(
+        pos, vel, head_on * max_speed, config, settled_drones(rel_goal, vel, config), rel_goal, max_speed
+    )
+    assert acted.all()
+    correction = np.linalg.norm(u - head_on * max_speed, axis=-1)
+    np.testing.assert_allclose(charged[0] - shielded_rewards[0], -2.0 * correction, rtol=1e-5)
+
+
 @pytest.mark.parametrize(
     ("kwargs", "match"),
     [
@@ -267,6 +306,8 @@ def test_separation_aids_worked_by_hand():
         ({"swarm_sizes": (2, 0)}, "swarm_sizes must be a non-empty"),
         ({"swarms_per_size": (1, 2, 3)}, "one per swarm size"),
         ({"neighbours": 0}, "neighbours must be an integer >= 1"),
+        ({"shield_penalty": 1.0}, "shield_penalty needs a shield"),
+        ({"shield": {}, "shield_penalty": -1.0}, "shield_penalty must be a finite number >= 0"),
     ],
 )
 def test_bad_vec_env_options_are_refused(kwargs, match):
@@ -283,6 +324,8 @@ def test_bad_shared_training_configs_are_refused():
         SharedTrainConfig(simulator="crazyflie")
     with pytest.raises(ValueError, match="separation_penalty must be a finite number >= 0"):
         SharedTrainConfig(separation_penalty=float("nan"))
+    with pytest.raises(ValueError, match="shield_penalty needs shield=True"):
+        SharedTrainConfig(shield_penalty=1.0)
     preset = SHARED_PRESETS["shared-quick"]
     assert SharedTrainConfig.from_dict(preset.to_dict()) == preset
     assert preset.swarms_per_size == (160, 80, 53, 40)

@@ -349,18 +349,37 @@ def with_safety_filter(
 
     def filtered(obs: np.ndarray) -> np.ndarray:
         obs = np.asarray(obs, dtype=float)
-        per_drone = obs.reshape(len(obs), num_drones, -1)
-        rel_goal, vel = per_drone[..., EQ2_POSITION], per_drone[..., EQ2_VELOCITY]
-        command = np.clip(np.asarray(act(obs), dtype=float), -1.0, 1.0).reshape(len(obs), num_drones, 3)
-        u, _ = filter_commands(
-            rel_goal + offsets,
-            vel,
-            command * max_speed,
-            config,
-            settled=settled_drones(rel_goal, vel, config),
-            rel_goal=rel_goal,
-            max_speed=max_speed,
-        )
-        return np.clip(u / max_speed, -1.0, 1.0).reshape(len(obs), 3 * num_drones)
+        command = np.asarray(act(obs), dtype=float).reshape(len(obs), num_drones, 3)
+        actions, _ = filter_actions(obs.reshape(len(obs), num_drones, -1), command, offsets, max_speed, config)
+        return actions.reshape(len(obs), 3 * num_drones)
 
     return filtered
+
+
+def filter_actions(
+    obs: np.ndarray, actions: np.ndarray, pad_offsets: np.ndarray, max_speed: float, config: SafetyFilterConfig
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`filter_commands` on eq. 3 actions, with positions and velocities read from eq. 2 observations.
+
+    Args:
+        obs: each drone's observation ``(..., N, >= 13)`` (eq. 2's ``p`` and ``v`` are read from it).
+        actions: normalised actions ``(..., N, 3)``; entries beyond [-1, 1] are clipped first, as eq. 3 does.
+        pad_offsets: each drone's pad offset on the plate ``(N, 3)`` m: ``p + offset`` places the drones in one frame.
+        max_speed: eq. 3's speed of action 1 (m/s).
+
+    Returns:
+        ``(filtered, correction)``: actions ``(..., N, 3)`` in [-1, 1], and how far the filter moved each drone's
+        command, ``(..., N)`` m/s.
+    """
+    rel_goal, vel = obs[..., EQ2_POSITION], obs[..., EQ2_VELOCITY]
+    command = np.clip(actions, -1.0, 1.0) * max_speed
+    u, _ = filter_commands(
+        rel_goal + pad_offsets,
+        vel,
+        command,
+        config,
+        settled=settled_drones(rel_goal, vel, config),
+        rel_goal=rel_goal,
+        max_speed=max_speed,
+    )
+    return np.clip(u / max_speed, -1.0, 1.0), np.linalg.norm(u - command, axis=-1)

@@ -25,6 +25,14 @@ from every flying drone whose nearest other drone is ``d_i < d_s`` (``separation
 signal before the sparse collision, with ``d_s`` below the 0.25 m pad spacing so that neighbours landing on
 adjacent pads cost nothing.
 
+**Shield (training only, not in the paper; off by default).** With ``shield`` set, the safety filter
+(:mod:`marlander_lite.swarm.safety_filter`, the one evaluation and deployment put after the policy) changes the
+commands before they are flown, as a *shield* does in safe RL [Alshiekh2018]: collisions become rare in training,
+so drones in swarms of 8 live long enough to practise landing beside each other, where one collision used to end
+the episode of all of them. PPO still learns from the policy's own actions, and ``shield_penalty`` ``w_s`` takes
+``w_s |u_filtered - u|`` (m/s) per step from every flying drone whose command the filter changed: the policy is
+taught to fly so that the filter has nothing to do, and the network alone is what is evaluated.
+
 **Episodes.** A swarm's episode ends for all its drones at once (eq. 4's termination: all landed, a
 crash, a collision, a drone out of the arena, or the time limit). Drones that landed earlier stay
 entries until then; their actions are ignored and they earn only the shared terms.
@@ -45,6 +53,7 @@ from marlander_lite.episodes import LandingEpisodes, StepOutcome
 from marlander_lite.pointmass.envs import build_simulator
 from marlander_lite.pointmass.simulator import PointMassParams
 from marlander_lite.swarm.observation import pairwise_offsets, shared_obs_size, shared_observations
+from marlander_lite.swarm.safety_filter import SafetyFilterConfig, filter_actions
 from marlander_lite.task import ACT_PER_DRONE, OBS_LIMITS, TaskConfig
 
 _NO_INFO = MappingProxyType({})
@@ -65,6 +74,8 @@ class SharedSwarmVecEnv(InProcessVecEnv):
             (only the drones in the collision pay; a training aid).
         separation_penalty: ``w >= 0`` of the separation aid (reward per metre inside ``separation_margin``).
         separation_margin: ``d_s`` (m), the distance below which the separation aid charges a flying drone.
+        shield: a :class:`SafetyFilterConfig` (or its dict) to filter the commands with in training; None: no shield.
+        shield_penalty: ``w_s >= 0``, reward lost per m/s of command change by the shield (needs ``shield``).
 
     Entries are ordered group by group, then swarm by swarm, then drone by drone. ``infos`` of a
     finished swarm's drone 0 carry the swarm's episode (``episode``: mean per-drone return and length,
@@ -88,6 +99,8 @@ class SharedSwarmVecEnv(InProcessVecEnv):
         collision_credit: Literal["swarm", "involved"] = "swarm",
         separation_penalty: float = 0.0,
         separation_margin: float = 0.22,
+        shield: SafetyFilterConfig | dict[str, Any] | None = None,
+        shield_penalty: float = 0.0,
     ) -> None:
         if collision_credit not in ("swarm", "involved"):
             raise ValueError(f"collision_credit must be 'swarm' or 'involved', got {collision_credit!r}.")
@@ -97,6 +110,12 @@ class SharedSwarmVecEnv(InProcessVecEnv):
             raise ValueError(f"separation_margin must be a finite distance > 0 m, got {separation_margin!r}.")
         self.collision_credit, self.separation_penalty = collision_credit, float(separation_penalty)
         self.separation_margin = float(separation_margin)
+        if not (np.isfinite(shield_penalty) and shield_penalty >= 0):
+            raise ValueError(f"shield_penalty must be a finite number >= 0, got {shield_penalty!r}.")
+        if shield_penalty and shield is None:
+            raise ValueError("shield_penalty needs a shield: pass shield=SafetyFilterConfig() (or its dict).")
+        self.shield = SafetyFilterConfig.from_dict(shield) if isinstance(shield, dict) else shield
+        self.shield_penalty = float(shield_penalty)
         sizes = tuple(swarm_sizes)
         if not sizes or any(isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 1 for n in sizes):
             raise ValueError(f"swarm_sizes must be a non-empty sequence of integers >= 1, got {swarm_sizes!r}.")
@@ -129,6 +148,8 @@ class SharedSwarmVecEnv(InProcessVecEnv):
         self._slices = np.cumsum([0] + [n * e for n, e in zip(sizes, counts, strict=True)])
         self._actions: np.ndarray | None = None
         self._elapsed = 0.0
+        self._last_obs: list[np.ndarray] = [np.empty(0)] * len(self.groups)
+        """Each group's latest eq. 2 observations ``(E_g, N_g, 13)``, what the shield reads."""
         super().__init__(
             int(self._slices[-1]),
             spaces.Box(-bounds, bounds, dtype=np.float32),
@@ -154,7 +175,8 @@ class SharedSwarmVecEnv(InProcessVecEnv):
                 episodes.seed(self._seeds[0] + g)
         self._reset_seeds()
         self._reset_options()
-        return np.concatenate([self._inputs(g, ep.reset()) for g, ep in enumerate(self.groups)])
+        self._last_obs = [ep.reset() for ep in self.groups]
+        return np.concatenate([self._inputs(g, obs) for g, obs in enumerate(self._last_obs)])
 
     def step_async(self, actions: np.ndarray) -> None:
         self._actions = np.asarray(actions)
@@ -171,17 +193,30 @@ class SharedSwarmVecEnv(InProcessVecEnv):
         for g, episodes in enumerate(self.groups):
             n, e = self.swarm_sizes[g], self.swarms_per_size[g]
             lo, hi = int(self._slices[g]), int(self._slices[g + 1])
-            outcome = episodes.step(actions[lo:hi].reshape(e, n, ACT_PER_DRONE))
-            rewards.append(self._separation_aids(episodes, outcome).reshape(-1))  # before the resets below
-            group_obs = self._inputs(g, outcome.obs)
+            group_actions = actions[lo:hi].reshape(e, n, ACT_PER_DRONE)
+            correction = None
+            if self.shield is not None:
+                group_actions, correction = filter_actions(
+                    self._last_obs[g], group_actions, self.pad_offsets[g], self.task.max_speed, self.shield
+                )
+            outcome = episodes.step(group_actions)
+            group_rewards = self._separation_aids(episodes, outcome)  # before the resets below
+            if self.shield_penalty:
+                flying = ~outcome.landed | outcome.landed_now
+                group_rewards = group_rewards - self.shield_penalty * correction * flying
+            rewards.append(group_rewards.reshape(-1))
+            raw = outcome.obs
+            group_obs = self._inputs(g, raw)
             done = outcome.done
             if done.any():
                 ids = np.flatnonzero(done)
                 self._finish(infos, lo, n, ids, outcome, group_obs)
-                fresh = self._inputs(g, episodes.reset(ids)).reshape(len(ids), n, -1)
+                raw = raw.copy()
+                raw[ids] = episodes.reset(ids)
                 group_obs = group_obs.reshape(e, n, -1)
-                group_obs[ids] = fresh
+                group_obs[ids] = self._inputs(g, raw[ids]).reshape(len(ids), n, -1)
                 group_obs = group_obs.reshape(e * n, -1)
+            self._last_obs[g] = raw
             obs.append(group_obs)
             dones.append(np.repeat(done, n))
         return np.concatenate(obs), np.concatenate(rewards).astype(np.float32), np.concatenate(dones), infos
