@@ -73,32 +73,33 @@ def resolve_engine(engine: str = "auto") -> Literal["numpy", "numba"]:
     return engine  # type: ignore[return-value]
 
 
-def _jit(function: Callable[..., Any]) -> Callable[..., Any]:
+def jit_kernel(function: Callable[..., Any]) -> Callable[..., Any]:
+    """``function`` compiled as every kernel of the engine is (cached on disk, no GIL), or as it is without numba."""
     # No fastmath: it would license reassociation and fused multiply-adds, and the bits would differ.
     return numba.njit(cache=True, nogil=True, error_model="numpy")(function) if numba is not None else function
 
 
 # ---------------------------------------------------------------- numpy's elementwise choices, as scalars
-@_jit
+@jit_kernel
 def _clip(x: float, low: float, high: float) -> float:
     """``np.clip``: keeps ``x`` when it is inside, signed zero and NaN included."""
     return low if x < low else (high if x > high else x)
 
 
-@_jit
+@jit_kernel
 def _maximum(a: float, b: float) -> float:
     """``np.maximum(a, b)``: NaN wins; on a tie (``-0.0, 0.0``) numpy returns ``b``."""
     return a if (a > b or a != a) else b
 
 
-@_jit
+@jit_kernel
 def _minimum(a: float, b: float) -> float:
     """``np.minimum(a, b)``: NaN wins; on a tie numpy returns ``b``."""
     return a if (a < b or a != a) else b
 
 
 # ---------------------------------------------------------------- eq. 6: closest pair
-@_jit
+@jit_kernel
 def min_separation(pos: np.ndarray) -> np.ndarray:
     """:func:`marlander_lite.task.min_separation` compiled: the smallest distance between two drones per env.
 
@@ -126,7 +127,7 @@ def min_separation(pos: np.ndarray) -> np.ndarray:
 
 
 # ---------------------------------------------------------------- the step, in two halves
-@_jit
+@jit_kernel
 def _rest_height(
     x: float, y: float, plate_pos: np.ndarray, k: int, half_x: float, half_y: float, lift: float, floor: float
 ) -> float:
@@ -135,7 +136,7 @@ def _rest_height(
     return plate_pos[k, 2] + lift if over_plate else floor
 
 
-@_jit
+@jit_kernel
 def thrust_and_integrate(
     velocity: np.ndarray,
     pos: np.ndarray,
@@ -239,7 +240,7 @@ def thrust_and_integrate(
             thrust_dir[k, i, 0], thrust_dir[k, i, 1], thrust_dir[k, i, 2] = a0, a1, a2
 
 
-@_jit
+@jit_kernel
 def attitude_rates_and_contacts(
     angle: np.ndarray,
     cross: np.ndarray,

@@ -1,7 +1,8 @@
 """Compiled starting positions: :func:`marlander_lite.task.sample_spawn_positions`' rejection loop, the same draws.
 
 The reference redraws whole swarms until every pair of drones is ``spawn_separation`` apart: at 16 drones that is
-about a dozen rounds per reset, each a dozen small numpy calls, and it was a quarter of a 16-drone training step.
+about a dozen rounds per reset, each a dozen small numpy calls: a quarter of a 16-drone VecEnv step with random
+actions (profiled; ``benchmarks/bench_pointmass.py`` setting) before these kernels.
 These kernels run the rounds in one call and draw from the caller's ``np.random.Generator`` itself (numba shares
 its bit generator), in the reference's order, so the positions and the generator's state afterwards are the same
 to the last bit (``tests/test_pointmass_kernels.py``). Only the cosines and sines of near-pad starts (a training
@@ -16,13 +17,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from marlander_lite.pointmass.kernels import _jit
+from marlander_lite.pointmass.kernels import jit_kernel
 
 if TYPE_CHECKING:
     from marlander_lite.task import TaskConfig
 
 
-@_jit
+@jit_kernel
 def spawn_rounds(
     rng: np.random.Generator,
     pos: np.ndarray,
@@ -71,7 +72,7 @@ def spawn_rounds(
     return ids, 0, rounds
 
 
-@_jit
+@jit_kernel
 def place_near_pads(
     pos: np.ndarray,
     ids: np.ndarray,
@@ -97,7 +98,7 @@ def place_near_pads(
             j += 1
 
 
-@_jit
+@jit_kernel
 def swarms_too_close(pos: np.ndarray, ids: np.ndarray, separation: float) -> np.ndarray:
     """The swarms among ``ids`` whose closest pair is less than ``separation`` (m) apart, as :func:`min_separation`
     measures it (a NaN distance passes, as ``NaN < separation`` is False in the reference)."""
