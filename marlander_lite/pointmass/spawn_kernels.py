@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from marlander_lite.pointmass.kernels import jit_kernel
+from marlander_lite.pointmass.kernels import jit_kernel, min_separation
 
 if TYPE_CHECKING:
     from marlander_lite.task import TaskConfig
@@ -102,21 +102,7 @@ def place_near_pads(
 def swarms_too_close(pos: np.ndarray, ids: np.ndarray, separation: float) -> np.ndarray:
     """The swarms among ``ids`` whose closest pair is less than ``separation`` (m) apart, as :func:`min_separation`
     measures it (a NaN distance passes, as ``NaN < separation`` is False in the reference)."""
-    n = pos.shape[1]
-    keep = np.zeros(ids.size, dtype=np.bool_)
-    for a in range(ids.size):
-        k = ids[a]
-        best, nan = np.inf, False
-        for i in range(n - 1):
-            for j in range(i + 1, n):
-                dx = pos[k, j, 0] - pos[k, i, 0]
-                dy = pos[k, j, 1] - pos[k, i, 1]
-                dz = pos[k, j, 2] - pos[k, i, 2]
-                sq = dx * dx + dy * dy + dz * dz
-                best = sq if sq < best else best
-                nan |= sq != sq
-        keep[a] = not nan and math.sqrt(best) < separation
-    return ids[keep]
+    return ids[min_separation(pos[ids]) < separation]
 
 
 def sample_spawn_positions(

@@ -34,6 +34,7 @@ from marlander_lite.distributed import Backend, map_jobs
 from marlander_lite.policy_file import read_contract
 from marlander_lite.training.provenance import policy_digest
 from marlander_lite.training.sweep import SeedJob, SeedOutcome, receive_run, run_state, train_seed
+from marlander_lite.training.warm_start import is_policy_file
 
 MANIFEST = "shipped.json"
 TOLERANCE = {"success_rate": 0.05, "landing_error_mean_cm": 0.5}
@@ -73,7 +74,7 @@ def shipped_artifacts(data: str | Path = "data") -> list[ShippedArtifact]:
             record = json.loads((run / "config.json").read_text())
             preset, config = record.get("preset"), dict(record["train"])
             source = config.get("init_from")
-            if source is not None and Path(source).suffix == ".safetensors":  # a shipped policy file
+            if is_policy_file(source):  # a shipped policy file
                 shipped_source = data / "policies" / Path(source).name
                 if not shipped_source.is_file():
                     problem = f"it continues the policy {source}, which is not shipped"
