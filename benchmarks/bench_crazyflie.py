@@ -11,7 +11,10 @@ that both sides of it ran under the same load from the rest of the machine):
    (``bare``) and with ground effect + drag + downwash (``aero``). ``bare x`` is the step's
    cost over a bare ``stepSimulation`` loop that advances the same bodies by the same time in
    the same number of calls (gravity off, so the drones float as if hovering and nothing
-   touches), ``floor x`` the API floor's (below) over the same loop. The PyBullet calls are
+   touches), ``floor x`` the API floor's (below) over the same loop. Each setting is flown by
+   both engines of the control ticks in the same rounds (``numpy``: the Python reference,
+   ``numba``: the compiled kernels of ``crazyflie/tick_kernels.py``, same results bit for bit);
+   ``numba gain`` is the numpy step's time over the numba step's. The PyBullet calls are
    passed the client id by position, as the simulator passes it (keywords cost ~10 % more);
 2. the cost of one step of our code over a bare ``stepSimulation`` loop that advances the same
    bodies by the same time (gravity off, so the drones float as if hovering and nothing
@@ -54,11 +57,13 @@ def hover_grid(num_drones: int) -> np.ndarray:
     return np.array([(0.5 * (i % 4) - 0.75, 0.5 * (i // 4) - 0.25, 1.5) for i in range(num_drones)])
 
 
-def hovering_swarm(num_drones: int, physics: str, controller: str = "pid", policy_hz: float = 24.0) -> CrazyflieSwarm:
+def hovering_swarm(
+    num_drones: int, physics: str, controller: str = "pid", policy_hz: float = 24.0, engine: str = "auto"
+) -> CrazyflieSwarm:
     """A swarm hovering at :func:`hover_grid` (``firmware`` ticks at ``physics_hz``)."""
     config = PhysicsConfig.preset(physics, control_hz=48.0 if policy_hz == 24.0 else policy_hz)
     task_config = TaskConfig(num_drones=num_drones, policy_hz=policy_hz)
-    sim = CrazyflieSwarm(task_config, PlatformConfig(), physics=config, controller=controller)
+    sim = CrazyflieSwarm(task_config, PlatformConfig(), physics=config, controller=controller, engine=engine)
     sim.place(0, hover_grid(num_drones))
     return sim
 
@@ -156,27 +161,38 @@ def main() -> None:
 
     print("1. Simulator step (policy 24 Hz = 10 physics steps at 240 Hz), hovering; pid: 2 ticks at 48 Hz,")
     print("   firmware: 10 ticks at 240 Hz")
-    header = f"{'drones':>6} {'tracker':>8} {'physics':>8} {'steps/s':>8} {'ticks/s':>8} {'real-time x':>11}"
-    print(f"{header} {'bare x':>7} {'floor x':>7}")
+    header = f"{'drones':>6} {'tracker':>8} {'physics':>8} {'engine':>6} {'steps/s':>8} {'ticks/s':>8}"
+    print(f"{header} {'real-time x':>11} {'bare x':>7} {'floor x':>7} {'numba gain':>10}")
     for n in (1, 2, 4, 8, 16):
         for controller in ("pid", "firmware"):
             for physics in ("bare", "aero"):
-                sim, hover, grid = hovering_swarm(n, physics, controller), np.zeros((1, n, 3)), hover_grid(n)
-                fns = {"step": lambda sim=sim, hover=hover: sim.step(hover)}
+                sims = {e: hovering_swarm(n, physics, controller, engine=e) for e in ("numpy", "numba")}
+                hover, grid, sim = np.zeros((1, n, 3)), hover_grid(n), sims["numba"]
+                fns = {e: lambda s=s, hover=hover: s.step(hover) for e, s in sims.items()}
                 fns["bare"] = with_gravity_off(sim, bare_physics(sim))
                 if physics == "bare":
                     fns["floor"] = with_gravity_off(sim, api_floor(sim))
-                # The gravity-free loops let the drones drift: put them back before each turn.
-                runs = interleaved(fns, secs, reps, setup=lambda sim=sim, grid=grid: sim.place(0, grid))
-                step = statistics.median(runs["step"])
+
+                def setup(sims=sims, grid=grid) -> None:  # the gravity-free loops let the drones drift: put them back
+                    for s in sims.values():
+                        s.place(0, grid)
+
+                runs = interleaved(fns, secs, reps, setup=setup)
                 floor = f"{ratio(runs, 'floor', 'bare'):7.2f}" if "floor" in runs else f"{'':>7}"
-                ticks = round(sim.physics.control_hz / sim.task.policy_hz) / step
-                row = f"{n:>6} {controller:>8} {physics:>8} {1 / step:8.0f} {ticks:8.0f} {sim.task.dt / step:11.1f}"
-                print(f"{row} {ratio(runs, 'step', 'bare'):7.2f} {floor}", flush=True)
-                sim.close()
+                for engine in ("numpy", "numba"):
+                    step = statistics.median(runs[engine])
+                    ticks = round(sim.physics.control_hz / sim.task.policy_hz) / step
+                    row = f"{n:>6} {controller:>8} {physics:>8} {engine:>6} {1 / step:8.0f} {ticks:8.0f}"
+                    row += f" {sim.task.dt / step:11.1f} {ratio(runs, engine, 'bare'):7.2f}"
+                    if engine == "numba":
+                        row += f" {floor} {ratio(runs, 'numpy', 'numba'):10.2f}"
+                    print(row, flush=True)
+                for s in sims.values():
+                    s.close()
     print("   'bare x': simulator step / bare stepSimulation loop over the same bodies, one call per tick")
     print("   (gravity off); 'floor x': API floor (the PyBullet calls a controller ticking at that rate")
-    print("   must make) / the same bare loop; both medians of the ratios within each round\n")
+    print("   must make) / the same bare loop; 'numba gain': the numpy engine's step / the numba engine's;")
+    print("   all medians of the ratios within each round. Sections 2-4 run the default engine (auto: numba)\n")
 
     print("2. Where a 2-drone env step goes (policy 24 Hz, aero physics), microseconds per step")
     forever = {"episode_seconds": 1e5}  # no episode end while timing a hovering swarm

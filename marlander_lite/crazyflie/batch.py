@@ -19,6 +19,7 @@ from marlander_lite.crazyflie.perturb import Controller, Perturbation
 from marlander_lite.crazyflie.simulator import CrazyflieSwarm
 from marlander_lite.episodes import SwarmState
 from marlander_lite.platforms import PlatformConfig
+from marlander_lite.pointmass.kernels import Engine
 from marlander_lite.task import TaskConfig
 
 _ONE = np.zeros(1, dtype=int)
@@ -40,12 +41,15 @@ class CrazyflieBatch:
         gains: PIDGains | None = None,
         controller: Controller = "pid",
         perturbation: Perturbation | None = None,
+        engine: Engine = "auto",
     ) -> None:
         if num_envs < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}.")
         self.task, self.platform, self.num_envs = task_config, platform, num_envs
         self.swarms = [
-            CrazyflieSwarm(task_config, platform, 1, physics, drone, gains, False, controller, perturbation)
+            CrazyflieSwarm(
+                task_config, platform, 1, physics, drone, gains, False, controller, perturbation, engine=engine
+            )
             for _ in range(num_envs)
         ]
 

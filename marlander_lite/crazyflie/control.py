@@ -140,9 +140,11 @@ class CascadedPID:
     """The three-stage controller for ``num_drones`` drones, stepped every ``dt`` seconds.
 
     Call :meth:`update` at each control tick for each drone; it returns the four motor speeds
-    (RPM). Per-drone state (the two integrators) lives in this object; :meth:`reset` clears it.
-    The arithmetic is on floats, one drone at a time (see :mod:`marlander_lite.crazyflie.physics`
-    for why that is faster than numpy for a handful of drones).
+    (RPM). Per-drone state (the two integrators) lives in this object's :attr:`state` array;
+    :meth:`reset` clears it. The arithmetic is on floats, one drone at a time (see
+    :mod:`marlander_lite.crazyflie.physics` for why that is faster than numpy for a handful of
+    drones); this is the reference that :func:`marlander_lite.crazyflie.tick_kernels.pid_tick`
+    compiles for all drones of a swarm at once.
     """
 
     def __init__(self, params: CF2XParams, gains: PIDGains, num_drones: int, dt: float) -> None:
@@ -156,12 +158,15 @@ class CascadedPID:
         self.thrust_max = params.max_thrust
         """Collective thrust at ``pwm_max`` (N)."""
         self._weight = params.weight
-        self.pos_integral = [[0.0, 0.0, 0.0] for _ in range(num_drones)]
-        """Integrated position error per drone (m s)."""
-        self.att_integral = [[0.0, 0.0, 0.0] for _ in range(num_drones)]
-        """Integrated (negative) rotation error per drone (s)."""
-        self.thrust_vector = [(0.0, 0.0, 0.0)] * num_drones
-        """Last commanded thrust vector ``F`` per drone (world frame, N)."""
+        self.state = np.zeros((num_drones, 9))
+        """Per-drone memory ``(N, 9)``: :attr:`pos_integral`, :attr:`att_integral`, :attr:`thrust_vector` side by
+        side, in one array that both engines update in place (see :mod:`marlander_lite.crazyflie.tick_kernels`)."""
+        self.pos_integral = self.state[:, 0:3]
+        """Integrated position error per drone ``(N, 3)`` (m s), a view of :attr:`state`."""
+        self.att_integral = self.state[:, 3:6]
+        """Integrated (negative) rotation error per drone ``(N, 3)`` (s), a view of :attr:`state`."""
+        self.thrust_vector = self.state[:, 6:9]
+        """Last commanded thrust vector ``F`` per drone ``(N, 3)`` (world frame, N), a view of :attr:`state`."""
         # Gains and limits as tuples of floats, read once per tick.
         self._pos_gains = (gains.pos_p, gains.pos_i, gains.pos_d, gains.pos_integral_limit)
         # Per attitude axis: -K_R / K_w (formed as the scalar law does), K_I, K_w, integral bound.
@@ -173,9 +178,8 @@ class CascadedPID:
 
     def reset(self, drones: Sequence[int] | None = None) -> None:
         """Clear the integrators of ``drones`` (indices; all by default)."""
-        for i in range(self.num_drones) if drones is None else drones:
-            self.pos_integral[i] = [0.0, 0.0, 0.0]
-            self.att_integral[i] = [0.0, 0.0, 0.0]
+        rows = slice(None) if drones is None else list(drones)
+        self.state[rows, 0:6] = 0.0
 
     def update(
         self,
@@ -198,13 +202,13 @@ class CascadedPID:
         p, dt = self.params, self.dt
         (kpx, kpy, kpz), (kix, kiy, kiz), (kdx, kdy, kdz), (lx, ly, lz) = self._pos_gains
         # 1. position / velocity -> thrust vector F (world frame, N), integral clipped per axis.
+        # The drone's memory as floats (one read and one write of its row of the state array per tick).
+        ix, iy, iz, *att = self.state[i, 0:6].tolist()
         ex, ey, ez = target_pos[0] - pos[0], target_pos[1] - pos[1], target_pos[2] - pos[2]
-        integral = self.pos_integral[i]
-        ix, iy, iz = integral[0] + ex * dt, integral[1] + ey * dt, integral[2] + ez * dt
+        ix, iy, iz = ix + ex * dt, iy + ey * dt, iz + ez * dt
         ix = ix if -lx < ix < lx else (lx if ix > 0 else -lx)
         iy = iy if -ly < iy < ly else (ly if iy > 0 else -ly)
         iz = iz if -lz < iz < lz else (lz if iz > 0 else -lz)
-        integral[0], integral[1], integral[2] = ix, iy, iz
         fx = kpx * ex + kix * ix + kdx * (target_vel[0] - vel[0])
         fy = kpy * ey + kiy * iy + kdy * (target_vel[1] - vel[1])
         fz = kpz * ez + kiz * iz + kdz * (target_vel[2] - vel[2]) + self._weight
@@ -213,7 +217,6 @@ class CascadedPID:
         cap = self._tan_tilt * fz
         if horizontal > cap:
             fx, fy = fx * cap / horizontal, fy * cap / horizontal
-        self.thrust_vector[i] = (fx, fy, fz)
         # 2. attitude -> torques. Desired axes d1, d2, d3: d3 along F, d2 = d3 x e_x normalised (zero yaw).
         norm = math.sqrt(fx * fx + fy * fy + fz * fz)
         zx, zy, zz = fx / norm, fy / norm, fz / norm
@@ -228,7 +231,6 @@ class CascadedPID:
             (yy * r10 + yz * r20) - (xx * r01 + xy * r11 + xz * r21),
         )
         w_body = world_to_body(rot, ang_vel)
-        att = self.att_integral[i]
         limit_t, max_rate = self.gains.torque_limit, self.gains.max_body_rate
         torque = []
         for k, (rate_gain, ki, kd, limit) in enumerate(self._att_gains):
@@ -239,6 +241,7 @@ class CascadedPID:
             rate = rate if -max_rate < rate < max_rate else (max_rate if rate > 0 else -max_rate)
             t = kd * (rate - w_body[k]) + ki * acc
             torque.append(t if -limit_t < t < limit_t else (limit_t if t > 0 else -limit_t))
+        self.state[i] = (ix, iy, iz, *att, fx, fy, fz)
         # 3. mixer: collective thrust along the current body z axis, plus each motor's torque share
         collective = fx * r02 + fy * r12 + fz * r22
         collective = 0.0 if collective < 0.0 else self.thrust_max if collective > self.thrust_max else collective

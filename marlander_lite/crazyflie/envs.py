@@ -21,6 +21,7 @@ from marlander_lite.envs.gym_env import SwarmLandingEnv
 from marlander_lite.envs.options import EnvOptions, check_num_envs
 from marlander_lite.envs.parallel_env import SwarmParallelEnv
 from marlander_lite.envs.vec_env import LandingVecEnv
+from marlander_lite.pointmass.kernels import Engine, resolve_engine
 from marlander_lite.sensing import SensingConfig
 
 RenderMode = Literal["rgb_array", "human"]
@@ -49,6 +50,10 @@ class CrazyflieOptions(EnvOptions):
     controller: Controller = "pid"
     """The velocity tracker: ``"pid"`` (our cascaded PID at 48 Hz, chasing ``p + u dt`` and ``u``) or
     ``"firmware"`` (the Crazyflie firmware's velocity PID, :mod:`marlander_lite.crazyflie.firmware`)."""
+    engine: Engine = "auto"
+    """Who runs the control ticks: ``"numpy"`` (the reference, Python floats), ``"numba"`` (compiled, the same results
+    bit for bit, faster) or ``"auto"`` (numba when installed, unless ``MARLANDER_LITE_ENGINE=numpy``); see
+    :mod:`marlander_lite.crazyflie.tick_kernels`."""
     perturbation: Perturbation | Mapping[str, Any] | None = None
     """How the drone differs from the one its tracker was tuned for (:class:`Perturbation` or a mapping of
     its fields, e.g. ``{"mass_scale": 1.15, "latency_s": 0.06}``); ``None``: not at all."""
@@ -60,6 +65,7 @@ class CrazyflieOptions(EnvOptions):
         if self.gains is not None and not isinstance(self.gains, PIDGains):
             raise TypeError(f"gains must be a PIDGains, got {type(self.gains).__name__}.")
         check_controller(self.controller)
+        resolve_engine(self.engine)
         _ = (self.physics_config, self.perturbation_config)
 
     @property
@@ -85,6 +91,7 @@ class CrazyflieOptions(EnvOptions):
                 bool(gui),
                 controller=self.controller,
                 perturbation=self.perturbation_config,
+                engine=self.engine,
             )
         if gui:
             raise ValueError("gui opens one PyBullet window: build one world (num_envs=1) to watch it.")
@@ -101,6 +108,7 @@ class CrazyflieOptions(EnvOptions):
             self.gains,
             controller=self.controller,
             perturbation=self.perturbation_config,
+            engine=self.engine,
         )
 
 
@@ -152,7 +160,7 @@ class CrazyflieLandingEnv(SwarmLandingEnv):
     ``gymnasium.make("marlander_lite/CrazyflieLanding-v0", gui=False, render_mode=None, video_path=None,
     **fields)`` with the fields of :class:`CrazyflieOptions` (``num_drones=2, platform="static-floor",
     platform_speed=None, task=None, sensing=None, physics=None, drone=None, gains=None, controller="pid",
-    perturbation=None``), or ``options=CrazyflieOptions(...)``: ``platform`` is one of
+    engine="auto", perturbation=None``), or ``options=CrazyflieOptions(...)``: ``platform`` is one of
     ``static-floor``, ``static-elevated``, ``moving-linear``, ``moving-arc``, ``moving-mixed`` (line or arc
     per episode); ``platform_speed`` the moving tool speed (m/s, default 0.35); ``task`` a :class:`TaskConfig`
     or dict of fields to change
@@ -166,7 +174,9 @@ class CrazyflieLandingEnv(SwarmLandingEnv):
     :mod:`marlander_lite.crazyflie.firmware`); ``perturbation`` a
     :class:`~marlander_lite.crazyflie.perturb.Perturbation` or a dict of its fields (``{"mass_scale": 1.15,
     "latency_s": 0.06, "gain_scale": 0.7}``: a drone heavier than its tracker believes, commands that arrive
-    late, softer or stiffer outer gains); ``gui`` opens a PyBullet window; ``render_mode="rgb_array"`` makes
+    late, softer or stiffer outer gains); ``engine`` who runs the control ticks (``"numpy"``: the Python reference,
+    ``"numba"``: compiled, the same results bit for bit; ``"auto"``: numba when installed); ``gui`` opens a PyBullet
+    window; ``render_mode="rgb_array"`` makes
     :meth:`render` return an image, ``"human"`` opens the window; ``video_path`` records every episode as an
     animated GIF ``<video_path stem>-<episode>.gif``.
     """

@@ -128,8 +128,22 @@ class FirmwareGains:
             raise ValueError("velocity_hz must be > 0 and tilt_limit_deg in (0, 90).")
 
 
-class PID:
-    """One firmware PID (``pid.c``): derivative and integral of the error, both bounded outputs.
+PID_CONSTANTS = ("kp", "ki", "kd", "dt", "integral_limit", "output_limit", "b0", "a1", "a2", "filtered")
+"""What :func:`pid_constants` holds about one PID, in this order (``filtered`` is 1.0 with a D filter, else 0.0)."""
+PID_MEMORY = ("integral", "prev_error", "d1", "d2")
+"""What one PID remembers between updates, in this order: the integral, the last error, the D filter's two delays."""
+
+
+def pid_constants(
+    kp: float,
+    ki: float,
+    kd: float,
+    dt: float,
+    integral_limit: float = 0.0,
+    output_limit: float = 0.0,
+    d_cutoff_hz: float = 0.0,
+) -> tuple[float, ...]:
+    """The constants of one firmware PID (``pid.c``), as :data:`PID_CONSTANTS`.
 
     Args:
         kp, ki, kd: gains.
@@ -138,57 +152,59 @@ class PID:
         d_cutoff_hz: cut-off of the 2nd-order Butterworth filter on the derivative (0: none), the
             firmware's ``lpf2p`` with its sample rate ``1 / dt``.
     """
+    b0 = a1 = a2 = 0.0
+    filtered = d_cutoff_hz > 0 and kd > 0
+    if filtered:
+        # lpf2pSetCutoffFreq: a Butterworth biquad from the bilinear transform.
+        ohm = math.tan(math.pi * d_cutoff_hz * dt)
+        c = 1.0 + 2.0 * math.cos(math.pi / 4.0) * ohm + ohm * ohm
+        b0 = ohm * ohm / c
+        a1 = 2.0 * (ohm * ohm - 1.0) / c
+        a2 = (1.0 - 2.0 * math.cos(math.pi / 4.0) * ohm + ohm * ohm) / c
+    return (kp, ki, kd, dt, integral_limit, output_limit, b0, a1, a2, 1.0 if filtered else 0.0)
 
-    __slots__ = ("_filter", "dt", "integral", "integral_limit", "kd", "ki", "kp", "output_limit", "prev_error")
 
-    def __init__(
-        self,
-        kp: float,
-        ki: float,
-        kd: float,
-        dt: float,
-        integral_limit: float = 0.0,
-        output_limit: float = 0.0,
-        d_cutoff_hz: float = 0.0,
-    ) -> None:
-        self.kp, self.ki, self.kd, self.dt = kp, ki, kd, dt
-        self.integral_limit, self.output_limit = integral_limit, output_limit
-        self._filter = None
-        if d_cutoff_hz > 0 and kd > 0:
-            # lpf2pSetCutoffFreq: a Butterworth biquad from the bilinear transform.
-            ohm = math.tan(math.pi * d_cutoff_hz * dt)
-            c = 1.0 + 2.0 * math.cos(math.pi / 4.0) * ohm + ohm * ohm
-            b0 = ohm * ohm / c
-            a1 = 2.0 * (ohm * ohm - 1.0) / c
-            a2 = (1.0 - 2.0 * math.cos(math.pi / 4.0) * ohm + ohm * ohm) / c
-            self._filter = [b0, a1, a2, 0.0, 0.0]
-        self.reset()
+def pid_update(c: Sequence[float], memory: list[float], at: int, error: float) -> float:
+    """One step of a firmware PID (``pidUpdate``) with the error ``desired - measured``; returns the output.
+
+    ``c`` are its :func:`pid_constants`; its memory (:data:`PID_MEMORY`) is ``memory[at:at + 4]``, updated in place.
+    """
+    kp, ki, kd, dt, integral_limit, output_limit, b0, a1, a2, filtered = c
+    deriv = (error - memory[at + 1]) / dt
+    if filtered:  # lpf2pApply, Direct Form II
+        d1, d2 = memory[at + 2], memory[at + 3]
+        d0 = deriv - d1 * a1 - d2 * a2
+        deriv = b0 * (d0 + 2.0 * d1 + d2)
+        memory[at + 2], memory[at + 3] = d0, d1
+    integral = memory[at] + error * dt
+    if integral_limit > 0.0:
+        integral = (
+            integral_limit if integral > integral_limit else -integral_limit if integral < -integral_limit else integral
+        )
+    memory[at], memory[at + 1] = integral, error
+    out = kp * error + kd * deriv + ki * integral
+    if output_limit > 0.0:
+        out = output_limit if out > output_limit else -output_limit if out < -output_limit else out
+    return out
+
+
+class PID:
+    """One firmware PID on its own: :func:`pid_update` with its :func:`pid_constants` (same arguments) and memory."""
+
+    __slots__ = ("constants", "memory")
+
+    def __init__(self, *args: float, **kwargs: float) -> None:
+        self.constants = pid_constants(*args, **kwargs)
+        self.memory = [0.0] * 4
+        """:data:`PID_MEMORY`."""
 
     def reset(self, integral: float = 0.0) -> None:
         """Clear the memory (``pidReset``), optionally starting the integral at ``integral``."""
-        self.integral, self.prev_error = integral, 0.0
-        if self._filter is not None:
-            self._filter[3] = self._filter[4] = 0.0
+        self.memory = [integral, 0.0, 0.0, 0.0]
 
     def update(self, error: float) -> float:
         """One step with the error ``desired - measured``; returns the output."""
-        deriv = (error - self.prev_error) / self.dt
-        f = self._filter
-        if f is not None:  # lpf2pApply, Direct Form II
-            b0, a1, a2, d1, d2 = f
-            d0 = deriv - d1 * a1 - d2 * a2
-            deriv = b0 * (d0 + 2.0 * d1 + d2)
-            f[3], f[4] = d0, d1
-        limit = self.integral_limit
-        integral = self.integral + error * self.dt
-        if limit > 0.0:
-            integral = limit if integral > limit else -limit if integral < -limit else integral
-        self.integral, self.prev_error = integral, error
-        out = self.kp * error + self.kd * deriv + self.ki * integral
-        limit = self.output_limit
-        if limit > 0.0:
-            out = limit if out > limit else -limit if out < -limit else out
-        return out
+        return pid_update(self.constants, self.memory, 0, error)
 
 
 class FirmwareTracker:
@@ -232,25 +248,34 @@ class FirmwareTracker:
         """Thrust (PWM) the z integrator gives right after :meth:`reset`."""
         self._ki_z = ki[2]
         vdt, lim = self.velocity_dt, g.velocity_integral_limit
-        self._pids = []
-        for _ in range(num_drones):
-            velocity = [PID(kp[k], ki[k], 0.0, vdt, lim, tilt_out if k < 2 else z_out) for k in range(3)]
-            attitude = [
-                PID(g.attitude_p[k], g.attitude_i[k], g.attitude_d[k], dt, g.attitude_integral_limit[k])
-                for k in range(3)
-            ]
-            rate = [
-                PID(g.rate_p[k], g.rate_i[k], g.rate_d[k], dt, g.rate_integral_limit[k], INT16_MAX, g.rate_d_cutoff_hz)
-                for k in range(3)
-            ]
-            self._pids.append((velocity, attitude, rate))
+        velocity = [pid_constants(kp[k], ki[k], 0.0, vdt, lim, tilt_out if k < 2 else z_out) for k in range(3)]
+        attitude = [
+            pid_constants(g.attitude_p[k], g.attitude_i[k], g.attitude_d[k], dt, g.attitude_integral_limit[k])
+            for k in range(3)
+        ]
+        rate = [
+            pid_constants(
+                g.rate_p[k], g.rate_i[k], g.rate_d[k], dt, g.rate_integral_limit[k], INT16_MAX, g.rate_d_cutoff_hz
+            )
+            for k in range(3)
+        ]
+        self.pid_constants = np.array(velocity + attitude + rate)
+        """The nine PIDs' :func:`pid_constants` ``(9, 10)``: velocity x, y, z; attitude and rate roll, pitch, yaw.
+        The same for every drone."""
+        self._pids = tuple(velocity + attitude + rate)
+        self.pid_memory = np.zeros((num_drones, 9, 4))
+        """Every drone's nine PIDs' :data:`PID_MEMORY` ``(N, 9, 4)``, PIDs in the order of :attr:`pid_constants`."""
+        self._memory_rows = self.pid_memory.reshape(num_drones, 36)  # a view: one row per drone
         self._mix = [tuple(row) for row in mixer_matrix(params).tolist()]
         self._motor_map = (params.pwm_max, params.pwm_to_rpm_scale, params.pwm_to_rpm_offset)
-        self._phase = [0] * num_drones
-        self.attitude_setpoint = [(0.0, 0.0)] * num_drones
-        """Last (roll, pitch) setpoint per drone (deg, right-handed)."""
-        self.thrust_command = [self.hover_pwm] * num_drones
-        """Last collective thrust command per drone (PWM)."""
+        self.phase = np.zeros(num_drones, dtype=np.int64)
+        """Per drone, ticks since its velocity loop last ran, modulo :attr:`velocity_every` (0: it runs now)."""
+        self.setpoint = np.zeros((num_drones, 3))
+        """Per drone ``(N, 3)``, the velocity loop's last output: :attr:`attitude_setpoint`, :attr:`thrust_command`."""
+        self.attitude_setpoint = self.setpoint[:, 0:2]
+        """Last (roll, pitch) setpoint per drone ``(N, 2)`` (deg, right-handed), a view of :attr:`setpoint`."""
+        self.thrust_command = self.setpoint[:, 2]
+        """Last collective thrust command per drone ``(N,)`` (PWM), a view of :attr:`setpoint`."""
         self.reset()
 
     def reset(self, drones: Sequence[int] | None = None) -> None:
@@ -258,14 +283,11 @@ class FirmwareTracker:
         value that gives :attr:`warm_start_pwm` (see the module docstring)."""
         g = self.gains
         warm = (self.warm_start_pwm - g.thrust_base) / (g.thrust_scale * self._ki_z) if self._ki_z > 0 else 0.0
-        for i in range(self.num_drones) if drones is None else drones:
-            velocity, attitude, rate = self._pids[i]
-            for pid in (*velocity[:2], *attitude, *rate):
-                pid.reset()
-            velocity[2].reset(warm)
-            self._phase[i] = 0
-            self.attitude_setpoint[i] = (0.0, 0.0)
-            self.thrust_command[i] = self.hover_pwm
+        rows = slice(None) if drones is None else list(drones)
+        self.pid_memory[rows] = 0.0
+        self.pid_memory[rows, 2, 0] = warm
+        self.phase[rows] = 0
+        self.setpoint[rows] = (0.0, 0.0, self.hover_pwm)
 
     def update(
         self,
@@ -283,35 +305,37 @@ class FirmwareTracker:
         ``rot`` is the body-to-world rotation (:func:`~marlander_lite.rotations.quat_to_matrix_rows`),
         ``vel`` (m/s) and ``ang_vel`` (rad/s) are world frame, ``target_vel`` the setpoint (m/s).
         """
-        g = self.gains
-        velocity, attitude, rate = self._pids[i]
+        g, (vx, vy, vz, att_r, att_p, att_y, rate_r, rate_p, rate_y) = self.gains, self._pids
+        memory = self._memory_rows[i].tolist()  # the nine PIDs' memory as floats, PID k at 4 k (written back below)
         roll, pitch, yaw = euler_zyx(rot)  # rad
-        phase = self._phase[i]
+        phase = int(self.phase[i])
         if phase == 0:
             # 1. velocity loop: world error in the yaw-aligned body frame -> tilt setpoints (deg), thrust (PWM).
             c, s = math.cos(yaw), math.sin(yaw)
             ex, ey = target_vel[0] - vel[0], target_vel[1] - vel[1]
             limit = g.tilt_limit_deg
-            pitch_sp = velocity[0].update(c * ex + s * ey)
-            roll_sp = -velocity[1].update(c * ey - s * ex)
+            pitch_sp = pid_update(vx, memory, 0, c * ex + s * ey)
+            roll_sp = -pid_update(vy, memory, 4, c * ey - s * ex)
             pitch_sp = limit if pitch_sp > limit else -limit if pitch_sp < -limit else pitch_sp
             roll_sp = limit if roll_sp > limit else -limit if roll_sp < -limit else roll_sp
-            thrust = g.thrust_scale * velocity[2].update(target_vel[2] - vel[2]) + g.thrust_base
+            thrust = g.thrust_scale * pid_update(vz, memory, 8, target_vel[2] - vel[2]) + g.thrust_base
             thrust = g.thrust_min if thrust < g.thrust_min else 65535.0 if thrust > 65535.0 else thrust
-            self.attitude_setpoint[i], self.thrust_command[i] = (roll_sp, pitch_sp), thrust
-        self._phase[i] = (phase + 1) % self.velocity_every
-        roll_sp, pitch_sp = self.attitude_setpoint[i]
+            self.setpoint[i] = (roll_sp, pitch_sp, thrust)
+        else:
+            roll_sp, pitch_sp, thrust = self.setpoint[i].tolist()
+        self.phase[i] = (phase + 1) % self.velocity_every
         # 2. attitude loop: ZYX Euler angles (deg) -> body-rate setpoints (deg/s); yaw held at 0.
-        roll_rate = attitude[0].update(roll_sp - roll * DEG)
-        pitch_rate = attitude[1].update(pitch_sp - pitch * DEG)
-        yaw_rate = attitude[2].update(-yaw * DEG)  # the yaw error is already within [-180, 180]
+        roll_rate = pid_update(att_r, memory, 12, roll_sp - roll * DEG)
+        pitch_rate = pid_update(att_p, memory, 16, pitch_sp - pitch * DEG)
+        yaw_rate = pid_update(att_y, memory, 20, -yaw * DEG)  # the yaw error is already within [-180, 180]
         # 3. rate loop on the body rates (deg/s) -> roll, pitch, yaw commands (PWM units), then the mixer
         wx, wy, wz = world_to_body(rot, ang_vel)
-        tx = rate[0].update(roll_rate - wx * DEG)
-        ty = rate[1].update(pitch_rate - wy * DEG)
-        tz = rate[2].update(yaw_rate - wz * DEG)
+        tx = pid_update(rate_r, memory, 24, roll_rate - wx * DEG)
+        ty = pid_update(rate_p, memory, 28, pitch_rate - wy * DEG)
+        tz = pid_update(rate_y, memory, 32, yaw_rate - wz * DEG)
+        self._memory_rows[i] = memory
         hi, scale, offset = self._motor_map
-        return mix_to_rpm(self.thrust_command[i], tx, ty, tz, self._mix, scale, offset, 0.0, hi)
+        return mix_to_rpm(thrust, tx, ty, tz, self._mix, scale, offset, 0.0, hi)
 
 
 def rate_loop_spectral_radius(
@@ -347,14 +371,13 @@ def rate_loop_spectral_radius(
         def tick(x: np.ndarray, axis: int = axis, gain: float = gain) -> np.ndarray:
             omega, acc, prev, d1, d2 = x
             pid = PID(gains.rate_p[axis], 0.0, gains.rate_d[axis], t, d_cutoff_hz=gains.rate_d_cutoff_hz)
-            pid.prev_error = prev
-            if pid._filter is not None:
-                pid._filter[3], pid._filter[4] = d1, d2
+            filtered = pid.constants[9] > 0.0  # without a D filter its delays are no state
+            pid.memory = [0.0, prev, d1, d2] if filtered else [0.0, prev, 0.0, 0.0]
             command = gain * pid.update(-omega)
             mean_acc = command + (acc - command) * mean if motor_time_constant > 0 else command
             new_acc = command + (acc - command) * decay if motor_time_constant > 0 else 0.0
-            f = pid._filter or [0.0] * 5
-            return np.array([omega + mean_acc * t, new_acc, -omega, f[3], f[4]])
+            f = pid.memory
+            return np.array([omega + mean_acc * t, new_acc, -omega, f[2], f[3]])
 
         matrix = np.column_stack([tick(e) for e in np.eye(5)])
         out[axis] = np.abs(np.linalg.eigvals(matrix)).max()

@@ -61,10 +61,11 @@ from marlander_lite.crazyflie.perturb import (
     check_controller,
 )
 from marlander_lite.crazyflie.physics import MotorLag
-from marlander_lite.crazyflie.ticks import ControlTick
+from marlander_lite.crazyflie.ticks import make_control_tick
 from marlander_lite.crazyflie.world import World, connect
 from marlander_lite.episodes import SwarmState
 from marlander_lite.platforms import PlatformConfig, PlatformMotion
+from marlander_lite.pointmass.kernels import Engine, resolve_engine
 from marlander_lite.task import TaskConfig
 
 CONTACT_TOLERANCE = 1e-3
@@ -94,6 +95,10 @@ class CrazyflieSwarm:
         perturbation: a :class:`~marlander_lite.crazyflie.perturb.Perturbation` or a mapping of its
             fields (``{"mass_scale": 1.15}``); ``None`` for none.
         firmware_gains: the firmware tracker's gains (default: the CF2 firmware's).
+        engine: who runs the control ticks: ``"numpy"``, the reference (Python floats, drone by drone,
+            :class:`~marlander_lite.crazyflie.ticks.ControlTick`), ``"numba"``, compiled kernels with the same
+            results bit for bit (:mod:`~marlander_lite.crazyflie.tick_kernels`), or ``"auto"`` (numba when
+            installed, unless ``MARLANDER_LITE_ENGINE=numpy``). The engine that runs is :attr:`engine`.
     """
 
     def __init__(
@@ -108,8 +113,11 @@ class CrazyflieSwarm:
         controller: Controller = "pid",
         perturbation: Perturbation | Mapping[str, Any] | None = None,
         firmware_gains: FirmwareGains | None = None,
+        engine: Engine = "auto",
     ) -> None:
         self.controller_kind: Controller = check_controller(controller)
+        self.engine = resolve_engine(engine)
+        """The engine of the control ticks: ``"numpy"`` (the reference) or ``"numba"``."""
         self.perturbation = build_perturbation(perturbation)
         if num_envs != 1:
             raise ValueError(
@@ -136,7 +144,7 @@ class CrazyflieSwarm:
         self.controller: CascadedPID | FirmwareTracker = tracker.controller
         """The tracker (``controller_kind`` names it); it believes in ``params``, PyBullet flies ``body_params``."""
         half = platform.geometry.half_extents(n)
-        self._tick = ControlTick(self.physics, self.params, self.controller, self._motor_lag, half)
+        self._tick = make_control_tick(self.engine, self.physics, self.params, self.controller, self._motor_lag, half)
         self.time = 0.0
         # Published state, (1, N, ...) as the Simulator protocol wants; views of one buffer that
         # is filled with one assignment per env step.
@@ -154,10 +162,11 @@ class CrazyflieSwarm:
         # Working state: PyBullet's tuples, read at every control tick.
         self._poses: list = []
         self._vels: list = []
-        self.rpm = [[0.0] * 4 for _ in range(n)]
-        """Rotor speeds per drone at the last tick (RPM); they lag the command when ``motor_time_constant > 0``."""
-        self.rpm_command = [[0.0] * 4 for _ in range(n)]
-        """Rotor speeds the PID asked for at its last tick, per drone (RPM)."""
+        self.rpm = self._tick.rotor_speeds(0.0)
+        """Rotor speeds per drone at the last tick (RPM); they lag the command when ``motor_time_constant > 0``.
+        ``rpm[i]`` holds drone ``i``'s four (a list with the ``"numpy"`` engine, an ``(N, 4)`` array with numba)."""
+        self.rpm_command = self._tick.rotor_speeds(0.0)
+        """Rotor speeds the PID asked for at its last tick, per drone (RPM), in the form of :attr:`rpm`."""
         self._forces: list = [_ZERO] * n
         self._torques: list = [_ZERO] * n
         self._active: list[int] = []
@@ -282,8 +291,8 @@ class CrazyflieSwarm:
         if self._delay is not None:  # nothing in flight: "hold still here" is what arrives first
             self._delay.fill((pos.tolist(), [[0.0, 0.0, 0.0]] * self.num_drones))
         hover = self.params.hover_rpm
-        self.rpm = [[hover] * 4 for _ in range(self.num_drones)]
-        self.rpm_command = [[hover] * 4 for _ in range(self.num_drones)]
+        self.rpm = self._tick.rotor_speeds(hover)
+        self.rpm_command = self._tick.rotor_speeds(hover)
         self._refresh_active()
         self._read_state()
         self._publish()

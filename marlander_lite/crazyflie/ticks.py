@@ -7,13 +7,20 @@ tick (48 Hz with the PID, 240 Hz with the firmware tracker) with the drones' PyB
     rpm    = MotorLag(rpm)                                    # physics.py, when motor_time_constant > 0
     wrench = motors (+ ground effect) + drag + downwash       # physics.py, body frame
 
-drone by drone on Python floats (see :mod:`~marlander_lite.crazyflie.physics` for why not numpy arrays).
+drone by drone on Python floats (see :mod:`~marlander_lite.crazyflie.physics` for why not numpy arrays). That is
+the reference. :class:`CompiledTick` runs the same tick for all drones in one call of a compiled kernel
+(:mod:`~marlander_lite.crazyflie.tick_kernels`, numba), with the same results bit for bit; :func:`make_control_tick`
+picks one of the two by engine (``"numpy"``: the reference, ``"numba"``, ``"auto"``).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from itertools import chain
 
+import numpy as np
+
+from marlander_lite.crazyflie import tick_kernels as kernels
 from marlander_lite.crazyflie.control import CascadedPID
 from marlander_lite.crazyflie.firmware import FirmwareTracker
 from marlander_lite.crazyflie.params import CF2XParams, PhysicsConfig
@@ -24,6 +31,8 @@ from marlander_lite.crazyflie.physics import (
     ground_effect_gains,
     motor_wrench,
 )
+from marlander_lite.crazyflie.tracker_kernels import firmware_constants, pid_constants
+from marlander_lite.pointmass.kernels import Engine, resolve_engine
 from marlander_lite.rotations import quat_to_matrix_rows, world_to_body
 
 _NO_GAIN = (1.0, 1.0, 1.0, 1.0)
@@ -51,6 +60,10 @@ class ControlTick:
         self.physics, self.params, self.controller, self.motor_lag = physics, params, controller, motor_lag
         self._half_x, self._half_y = plate_half
         self._rotors = tuple(tuple(rotor) for rotor in params.rotor_positions.tolist())
+
+    def rotor_speeds(self, value: float) -> list[list[float]]:
+        """Rotor speeds of every drone, all ``value`` (RPM), in the form :meth:`run` takes: a list of lists."""
+        return [[value] * 4 for _ in range(self.controller.num_drones)]
 
     def run(
         self,
@@ -133,3 +146,93 @@ class ControlTick:
             base + r20 * x3 + r21 * y3 + r22 * z3,
         )
         return ground_effect_gains(heights, self.params)
+
+
+class CompiledTick:
+    """:class:`ControlTick` for all drones of the swarm in one call of a compiled kernel: the same arguments,
+    results and tracker state, bit for bit (:mod:`~marlander_lite.crazyflie.tick_kernels`).
+
+    The tracker's memory stays in its own arrays, which the kernel updates in place, so its ``reset`` and
+    attributes work as with the reference. Differences in form only: :meth:`rotor_speeds` are ``(N, 4)`` arrays,
+    and :meth:`run` writes lists into ``forces`` and ``torques``.
+    """
+
+    def __init__(
+        self,
+        physics: PhysicsConfig,
+        params: CF2XParams,
+        controller: CascadedPID | FirmwareTracker,
+        motor_lag: MotorLag,
+        plate_half: tuple[float, float],
+    ) -> None:
+        self.physics, self.params, self.controller, self.motor_lag = physics, params, controller, motor_lag
+        n = self._num_drones = controller.num_drones
+        self._firmware = isinstance(controller, FirmwareTracker)
+        if self._firmware:
+            limits, mix = firmware_constants(controller)
+            memory = (controller.pid_memory, controller.phase, controller.setpoint)
+            self._tracker = (controller.pid_constants, limits, mix, controller.velocity_every, *memory)
+        else:
+            self._tracker = (*pid_constants(controller), controller.state)
+        self._aero = kernels.aero_constants(params, physics, motor_lag, plate_half)
+        self._effective, self._thrusts, self._rot = np.zeros((n, 4)), np.zeros(n), np.zeros((n, 9))
+        self._forces, self._torques = np.zeros((n, 3)), np.zeros((n, 3))
+        # Each input list as an array, converted once per list object: the simulator hands the same lists to
+        # every tick of an action (and through its command delay), and never changes one it has handed over.
+        self._inputs: dict[str, tuple[object, np.ndarray]] = {}
+
+    def rotor_speeds(self, value: float) -> np.ndarray:
+        """Rotor speeds of every drone, all ``value`` (RPM), in the form :meth:`run` takes: ``(N, 4)``."""
+        return np.full((self._num_drones, 4), float(value))
+
+    def _array(self, role: str, values: list, dtype: type) -> np.ndarray:
+        held = self._inputs.get(role)
+        if held is None or held[0] is not values:
+            held = self._inputs[role] = (values, np.array(values, dtype=dtype))
+        return held[1]
+
+    def run(
+        self,
+        poses: list,
+        vels: list,
+        active: list[int],
+        targets: list,
+        commands: list,
+        plate_pos: Sequence[float],
+        rpm: np.ndarray,
+        rpm_command: np.ndarray,
+        forces: list,
+        torques: list,
+    ) -> None:
+        """:meth:`ControlTick.run`, with ``rpm`` and ``rpm_command`` the ``(N, 4)`` arrays of :meth:`rotor_speeds`."""
+        n = self._num_drones
+        rows = (a + b + c + d for (a, b), (c, d) in zip(poses, vels, strict=True))
+        kin = np.fromiter(chain.from_iterable(rows), float, 13 * n).reshape(n, 13)  # pos, quat, vel, ang_vel
+        ids = self._array("active", active, np.int64)
+        px, py, pz = plate_pos
+        work = (*self._aero, rpm, rpm_command, self._effective, self._thrusts, self._rot, self._forces, self._torques)
+        command = self._array("commands", commands, float)
+        if self._firmware:
+            kernels.firmware_tick(kin, ids, command, px, py, pz, *self._tracker, *work)
+        else:
+            kernels.pid_tick(
+                kin, ids, self._array("targets", targets, float), command, px, py, pz, *self._tracker, *work
+            )
+        forces[:] = self._forces.tolist()
+        torques[:] = self._torques.tolist()
+
+
+def make_control_tick(
+    engine: Engine,
+    physics: PhysicsConfig,
+    params: CF2XParams,
+    controller: CascadedPID | FirmwareTracker,
+    motor_lag: MotorLag,
+    plate_half: tuple[float, float],
+) -> ControlTick | CompiledTick:
+    """The control tick of ``engine`` (``"auto"``, ``"numpy"`` or ``"numba"``, see
+    :func:`~marlander_lite.pointmass.kernels.resolve_engine`): the reference :class:`ControlTick` or
+    :class:`CompiledTick`."""
+    if resolve_engine(engine) == "numba":
+        return CompiledTick(physics, params, controller, motor_lag, plate_half)
+    return ControlTick(physics, params, controller, motor_lag, plate_half)
