@@ -126,6 +126,22 @@ def test_cli_errors_list_what_is_allowed(capsys, tmp_path):
     assert exit_info.value.code == 2 and "No training log" in capsys.readouterr().err
 
 
+@pytest.mark.slow
+def test_quickstart_trains_evaluates_on_both_simulators_and_plots(capsys, tmp_path, monkeypatch):
+    """The README's main job on CI's small budget: every step runs and writes what it says."""
+    monkeypatch.setenv("MARLANDER_BUDGET", "small")
+    out = tmp_path / "quick"
+    assert main(["quickstart", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    config = json.loads((out / "config.json").read_text())
+    assert config["preset"] == "quick-cpu-smooth"
+    assert config["train"]["smoothness_temporal"] == 1.0 and config["train"]["platform_height"] == [0.005, 1.0]
+    for name in ("static-floor", "static-elevated", "crazyflie-firmware"):
+        summary = json.loads((out / f"evaluation-{name}.json").read_text())
+        assert 0.0 <= summary["success_rate"] <= 1.0 and summary["episodes"] > 0
+    assert "firmware tracker" in printed and (out / "training_curves.png").stat().st_size > 10_000
+
+
 def test_cli_lists_presets(capsys):
     assert main(["train", "--list"]) == 0
     assert "quick-cpu" in capsys.readouterr().out

@@ -234,9 +234,18 @@ mass); with it (``moving-smooth-16m``, one seed) 98-99.5 % there and >= 78.5 % i
 ``single-agent`` preset uses it: with it, 8 M steps (``single-agent-smooth-8m``) land 99 % on static pads in PyBullet
 with our PID, where 3 M steps without it landed 85-90 % (docs/reproduction.md)."""
 _MOVING_PLATFORMS = {"platform": "moving-arc", "platform_speed": (0.0, 0.6), "platform_height": (0.005, 1.0)}
+_QUICK_SMOOTH = _QUICK.replace(
+    total_steps=14_000_000, smoothness_batch_size=1024, torch_threads=2, **_ALL_HEIGHTS, **SMOOTH_COMMANDS
+)
+"""``quick-cpu-smooth``: ``quick-cpu`` on plates of every height with smooth commands, the recipe of
+``quick-cpu-smooth-16m`` (95-100 % in every static column at 0.65-2.05 cm over three seeds) made to fit 10 minutes on
+2 cores: 14 M steps instead of 16 M, 1024 consecutive pairs per CAPS gradient instead of the whole 4096-sample
+minibatch (the aid then costs about a tenth of an update instead of doubling it), and both cores for PyTorch's
+update (a sweep then trains one seed at a time by default). Measured in docs/transfer.md."""
 
 PRESETS: dict[str, TrainConfig] = {
     "quick-cpu": _QUICK,
+    "quick-cpu-smooth": _QUICK_SMOOTH,
     "paper": _QUICK.replace(
         torch_threads=2,
         total_steps=20_000_000,
@@ -267,6 +276,8 @@ FINETUNE_PRESETS = ("crazyflie-finetune", "moving-crazyflie-finetune")
 
 PRESET_NOTES: dict[str, str] = {
     "quick-cpu": "2 drones, floor pad, point mass with a dynamics family, 128-128 ReLU, 8 M steps: minutes on 2 cores.",
+    "quick-cpu-smooth": "quick-cpu on plates of every height with smooth commands, 14 M steps, 2 threads: transfers "
+    "to every tracker of the matrix; under 10 min on 2 cores.",
     "paper": "the paper's 512-512-256-128 ReLU policy, 20 M steps, point mass (about 45 min on 2 cores).",
     "crazyflie-finetune": "continue a quick-cpu/paper run in the PyBullet Crazyflie swarm, 3 M steps (~30 min).",
     "moving": "beyond the paper: observes the platform velocity; UR10 arcs at 0-0.6 m/s, floor to 1 m, smooth "
