@@ -238,10 +238,12 @@ _QUICK_SMOOTH = _QUICK.replace(
     total_steps=14_000_000, smoothness_batch_size=1024, torch_threads=2, **_ALL_HEIGHTS, **SMOOTH_COMMANDS
 )
 """``quick-cpu-smooth``: ``quick-cpu`` on plates of every height with smooth commands, the recipe of
-``quick-cpu-smooth-16m`` (95-100 % in every static column at 0.65-2.05 cm over three seeds) made to fit 10 minutes on
-2 cores: 14 M steps instead of 16 M, 1024 consecutive pairs per CAPS gradient instead of the whole 4096-sample
-minibatch (the aid then costs about a tenth of an update instead of doubling it), and both cores for PyTorch's
-update (a sweep then trains one seed at a time by default). Measured in docs/transfer.md."""
+``quick-cpu-smooth-16m`` (95-100 % in every static column at 0.65-2.05 cm over three seeds) made cheaper: 14 M steps
+instead of 16 M, 1024 consecutive pairs per CAPS gradient instead of the whole 4096-sample minibatch (at 4096 the aid
+doubled the cost of an update), and both cores for PyTorch's update (a sweep then trains one seed at a time by
+default). Seed 0 trained alone in 11.9 min on the 2-core development VM, over the 10 minutes aimed at; 12 M steps
+land 2.6 cm from the pad centre on the point-mass UR10 plate, and 4 epochs with 512 pairs 2.7-3.0 cm on the point
+mass (docs/transfer.md)."""
 
 PRESETS: dict[str, TrainConfig] = {
     "quick-cpu": _QUICK,
@@ -276,8 +278,8 @@ FINETUNE_PRESETS = ("crazyflie-finetune", "moving-crazyflie-finetune")
 
 PRESET_NOTES: dict[str, str] = {
     "quick-cpu": "2 drones, floor pad, point mass with a dynamics family, 128-128 ReLU, 8 M steps: minutes on 2 cores.",
-    "quick-cpu-smooth": "quick-cpu on plates of every height with smooth commands, 14 M steps, 2 threads: transfers "
-    "to every tracker of the matrix; under 10 min on 2 cores.",
+    "quick-cpu-smooth": "quick-cpu on plates of every height with smooth commands, 14 M steps, 2 threads: lands in "
+    "every static column of the transfer matrix; 12 min on 2 cores.",
     "paper": "the paper's 512-512-256-128 ReLU policy, 20 M steps, point mass (about 45 min on 2 cores).",
     "crazyflie-finetune": "continue a quick-cpu/paper run in the PyBullet Crazyflie swarm, 3 M steps (~30 min).",
     "moving": "beyond the paper: observes the platform velocity; UR10 arcs at 0-0.6 m/s, floor to 1 m, smooth "
