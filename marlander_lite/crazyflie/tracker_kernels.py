@@ -123,6 +123,12 @@ def _pid_update(c: np.ndarray, memory: np.ndarray, i: int, k: int, error: float)
 
 # ---------------------------------------------------------------- the two trackers, one drone
 @jit_kernel
+def _rows_of(rot: np.ndarray, i: int) -> tuple:
+    """Drone ``i``'s rotation matrix as nine floats, row by row (the form of ``quat_to_matrix_rows``)."""
+    return rot[i, 0], rot[i, 1], rot[i, 2], rot[i, 3], rot[i, 4], rot[i, 5], rot[i, 6], rot[i, 7], rot[i, 8]
+
+
+@jit_kernel
 def _torque(
     k: int,
     e: float,
@@ -182,17 +188,7 @@ def pid_drone(
     m = math.sqrt(zy * zy + zz * zz)
     yy, yz = zz / m, -zy / m
     xx, xy, xz = yy * zz - yz * zy, yz * zx, -yy * zx
-    r00, r01, r02, r10, r11, r12, r20, r21, r22 = (
-        rot[i, 0],
-        rot[i, 1],
-        rot[i, 2],
-        rot[i, 3],
-        rot[i, 4],
-        rot[i, 5],
-        rot[i, 6],
-        rot[i, 7],
-        rot[i, 8],
-    )
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = _rows_of(rot, i)
     e0 = (zx * r01 + zy * r11 + zz * r21) - (yy * r12 + yz * r22)
     e1 = (xx * r02 + xy * r12 + xz * r22) - (zx * r00 + zy * r10 + zz * r20)
     e2 = (yy * r10 + yz * r20) - (xx * r01 + xy * r11 + xz * r21)
@@ -230,17 +226,7 @@ def firmware_drone(
     """:meth:`FirmwareTracker.update <marlander_lite.crazyflie.firmware.FirmwareTracker.update>` of drone ``i``:
     rotor speeds into ``out[i]`` (RPM); memory in ``memory[i]``, ``phase[i]``, ``setpoint[i]`` (the tracker's
     ``pid_memory``, ``phase``, ``setpoint``); ``pids`` is its ``pid_constants``."""
-    r00, r01, r02, r10, r11, r12, r20, r21, r22 = (
-        rot[i, 0],
-        rot[i, 1],
-        rot[i, 2],
-        rot[i, 3],
-        rot[i, 4],
-        rot[i, 5],
-        rot[i, 6],
-        rot[i, 7],
-        rot[i, 8],
-    )
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = _rows_of(rot, i)
     # euler_zyx: the clamp against rounding, then the C library's asin and atan2, as Python's math module calls them.
     pitch = math.asin(-r20 if -1.0 < -r20 < 1.0 else (1.0 if r20 < 0 else -1.0))
     roll, yaw = math.atan2(r21, r22), math.atan2(r10, r00)
