@@ -178,6 +178,19 @@ def _downwash_push(dz: float, horizontal_sq: float, thrust_above: float, aero: n
 
 
 # ---------------------------------------------------------------- the entry points: one control tick of a swarm
+WORK = ("aero", "switches", "rpm", "rpm_command", "effective", "thrusts", "rot", "forces", "torques")
+"""The tuple ``work`` of :func:`pid_tick` and :func:`firmware_tick`, in this order."""
+WORK_RPM_COMMAND, WORK_ROT = WORK.index("rpm_command"), WORK.index("rot")
+
+
+@jit_kernel
+def _forces(kin: np.ndarray, active: np.ndarray, px: float, py: float, pz: float, work: tuple) -> None:
+    """After either tracker: the motor lag, then every active drone's force and torque (into ``work``)."""
+    aero, switches, rpm, rpm_command, effective, thrusts, rot, forces, torques = work
+    speeds = _lag(active, rpm, rpm_command, effective, aero, switches[ON_LAG] != 0)
+    _wrenches(kin, rot, active, speeds, px, py, pz, aero, switches, thrusts, forces, torques)
+
+
 @jit_kernel
 def pid_tick(
     kin: np.ndarray,
@@ -192,15 +205,7 @@ def pid_tick(
     limits: np.ndarray,
     mix: np.ndarray,
     state: np.ndarray,
-    aero: np.ndarray,
-    switches: np.ndarray,
-    rpm: np.ndarray,
-    rpm_command: np.ndarray,
-    effective: np.ndarray,
-    thrusts: np.ndarray,
-    rot: np.ndarray,
-    forces: np.ndarray,
-    torques: np.ndarray,
+    work: tuple,
 ) -> None:
     """``ControlTick.run`` with a :class:`CascadedPID`, for the drones ``active`` (indices, int64).
 
@@ -209,17 +214,17 @@ def pid_tick(
         target, command: target position (m) and velocity (m/s) ``(N, 3)``.
         px, py, pz: the plate's top-face centre (m).
         pos_gains, att_gains, limits, mix: :func:`pid_constants`; ``state``: the tracker's ``state`` (updated).
-        aero, switches: :func:`aero_constants`.
-        rpm, rpm_command: rotor speeds ``(N, 4)`` (RPM), updated at the rows of ``active``.
-        effective ``(N, 4)``, thrusts ``(N,)``, rot ``(N, 9)``: work space.
-        forces, torques: ``(N, 3)`` body frame (N, N m), written at the rows of ``active``.
+        work: what both trackers' ticks share, :data:`WORK`: the :func:`aero_constants` ``aero`` and ``switches``;
+            rotor speeds ``rpm`` and ``rpm_command`` ``(N, 4)`` (RPM), updated at the rows of ``active``; work space
+            ``effective`` ``(N, 4)``, ``thrusts`` ``(N,)``, ``rot`` ``(N, 9)``; ``forces`` and ``torques`` ``(N, 3)``
+            body frame (N, N m), written at the rows of ``active``.
     """
+    rpm_command, rot = work[WORK_RPM_COMMAND], work[WORK_ROT]
     for a in range(active.size):
         i = active[a]
         rotation(kin, i, rot)
         pid_drone(i, kin, rot, target, command, pos_gains, att_gains, limits, mix, state, rpm_command)
-    speeds = _lag(active, rpm, rpm_command, effective, aero, switches[ON_LAG] != 0)
-    _wrenches(kin, rot, active, speeds, px, py, pz, aero, switches, thrusts, forces, torques)
+    _forces(kin, active, px, py, pz, work)
 
 
 @jit_kernel
@@ -237,22 +242,14 @@ def firmware_tick(
     memory: np.ndarray,
     phase: np.ndarray,
     setpoint: np.ndarray,
-    aero: np.ndarray,
-    switches: np.ndarray,
-    rpm: np.ndarray,
-    rpm_command: np.ndarray,
-    effective: np.ndarray,
-    thrusts: np.ndarray,
-    rot: np.ndarray,
-    forces: np.ndarray,
-    torques: np.ndarray,
+    work: tuple,
 ) -> None:
     """``ControlTick.run`` with a :class:`FirmwareTracker` (which ignores target positions); arguments as
     :func:`pid_tick`, with the tracker's ``pid_constants`` (``pids``), :func:`firmware_constants`, its
     ``velocity_every``, and its ``pid_memory``, ``phase`` and ``setpoint`` (updated)."""
+    rpm_command, rot = work[WORK_RPM_COMMAND], work[WORK_ROT]
     for a in range(active.size):
         i = active[a]
         rotation(kin, i, rot)
         firmware_drone(i, kin, rot, command, pids, limits, mix, velocity_every, memory, phase, setpoint, rpm_command)
-    speeds = _lag(active, rpm, rpm_command, effective, aero, switches[ON_LAG] != 0)
-    _wrenches(kin, rot, active, speeds, px, py, pz, aero, switches, thrusts, forces, torques)
+    _forces(kin, active, px, py, pz, work)

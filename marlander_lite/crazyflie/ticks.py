@@ -148,7 +148,7 @@ class ControlTick:
         return ground_effect_gains(heights, self.params)
 
 
-class CompiledTick:
+class CompiledTick(ControlTick):
     """:class:`ControlTick` for all drones of the swarm in one call of a compiled kernel: the same arguments,
     results and tracker state, bit for bit (:mod:`~marlander_lite.crazyflie.tick_kernels`).
 
@@ -165,7 +165,7 @@ class CompiledTick:
         motor_lag: MotorLag,
         plate_half: tuple[float, float],
     ) -> None:
-        self.physics, self.params, self.controller, self.motor_lag = physics, params, controller, motor_lag
+        super().__init__(physics, params, controller, motor_lag, plate_half)
         n = self._num_drones = controller.num_drones
         self._firmware = isinstance(controller, FirmwareTracker)
         if self._firmware:
@@ -213,10 +213,10 @@ class CompiledTick:
         work = (*self._aero, rpm, rpm_command, self._effective, self._thrusts, self._rot, self._forces, self._torques)
         command = self._array("commands", commands, float)
         if self._firmware:
-            kernels.firmware_tick(kin, ids, command, px, py, pz, *self._tracker, *work)
+            kernels.firmware_tick(kin, ids, command, px, py, pz, *self._tracker, work)
         else:
             kernels.pid_tick(
-                kin, ids, self._array("targets", targets, float), command, px, py, pz, *self._tracker, *work
+                kin, ids, self._array("targets", targets, float), command, px, py, pz, *self._tracker, work
             )
         forces[:] = self._forces.tolist()
         torques[:] = self._torques.tolist()
