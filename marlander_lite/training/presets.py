@@ -254,8 +254,9 @@ trains within 10 minutes on 2 cores:
 * 1024 consecutive pairs per CAPS gradient instead of the whole 4096-sample minibatch (at 4096 the aid doubled the
   cost of an update), and both cores for PyTorch's update (a sweep then trains one seed at a time by default).
 
-Seeds 0 and 1 land 95.5-100 % in every static column of the transfer matrix at 1.02-2.17 cm (docs/transfer.md); the
-14 M-step version before it (a 128-128 critic, constant 3e-4) took 11.9 min."""
+Seed 0, trained alone in 8.2 min on the 2-core development VM, and seed 1 land 95.5-100 % in every static column of the
+transfer matrix at 0.74-2.17 cm (docs/transfer.md); the 14 M-step version before it (a 128-128 critic, constant 3e-4,
+``quick-cpu-smooth-14m``) took 11.9 min."""
 
 PRESETS: dict[str, TrainConfig] = {
     "quick-cpu": _QUICK,
