@@ -10,9 +10,12 @@ import pytest
 
 from marlander_lite import task, training_aids
 from marlander_lite.cli import main
+from marlander_lite.episodes import StepOutcome
+from marlander_lite.experiments import transfer
 from marlander_lite.platforms import PlatformConfig
 from marlander_lite.pointmass.family import NOMINAL, DynamicsFamily
 from marlander_lite.pointmass.simulator import GRAVITY, PointMassParams, PointMassSwarm
+from marlander_lite.policy_file import load_policy
 from marlander_lite.task import TaskConfig
 
 POLICY = "data/policies/quick-cpu.safetensors"
@@ -197,10 +200,45 @@ def test_transfer_command_writes_a_well_formed_matrix(tmp_path, capsys) -> None:
         assert 0.0 <= float(row["wilson_low"]) <= rate <= float(row["wilson_high"]) <= 1.0
     data = json.loads((out / "transfer.json").read_text())
     assert len(data["policy_sha256"]) == 64 and len(data["cells"]) == 8
+    for cell in data["cells"]:  # every failed episode has exactly one cause
+        assert cell["successes"] + sum(cell[name] for name in transfer.FAILURES) == cell["episodes"]
+    assert "crash too fast" in (out / "transfer.md").read_text()
     # The files are kept unless --force.
     with pytest.raises(SystemExit):
         main(args)
     assert main([*args, "--force"]) == 0
+
+
+def _fly_fixed_command(velocity: tuple[float, float, float]) -> tuple[StepOutcome, TaskConfig]:
+    """One point-mass swarm on the floor pad flown with a constant command (m/s) for both drones; its last outcome."""
+    world = transfer.build_episodes(load_policy(POLICY), transfer.COLUMNS[0], transfer.ROWS[0], "perfect")
+    cfg = world.task
+    world.seed(0)
+    world.reset()
+    action = np.tile(np.asarray(velocity) / cfg.max_speed, cfg.num_drones)[None]
+    while not (outcome := world.step(action)).done[0]:
+        pass
+    return outcome, cfg
+
+
+def test_failure_causes_of_a_dive_and_a_hover() -> None:
+    """A straight dive at 2 m/s touches down 4x faster than the 0.5 m/s limit; a drone that holds still times out."""
+    dive, cfg = _fly_fixed_command((0.0, 0.0, -2.0))
+    assert dive.crashed[0].any() and dive.rel_speed[0][dive.crashed[0]].max() > cfg.touchdown_speed_max
+    assert transfer.failure_cause(dive, cfg) == "crashes_too_fast"
+    hover, cfg = _fly_fixed_command((0.0, 0.0, 0.0))
+    assert hover.truncated[0] and transfer.failure_cause(hover, cfg) == "timeouts"
+
+
+def test_a_matrix_written_before_failures_were_counted_still_reads(tmp_path) -> None:
+    old = json.loads(open("data/results/transfer/quick-cpu/transfer.json").read())
+    for cell in old["cells"]:
+        for name in transfer.FAILURES:
+            cell.pop(name, None)
+    (tmp_path / "transfer.json").write_text(json.dumps(old))
+    cells = transfer.read_results(tmp_path / "transfer.json")
+    assert cells[0].timeouts is None
+    assert "| - / - / - / - / - |" in transfer.format_flight_table(cells)
 
 
 @pytest.mark.parametrize(

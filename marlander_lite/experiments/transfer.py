@@ -17,6 +17,11 @@ one a real Crazyflie can follow:
   degree limit or beyond (on the firmware columns: how long the tracker is saturated);
 * ``approach_height``: height above the pad when a drone first comes within 0.5 m of it horizontally (m).
 
+And why the failed episodes failed (:class:`~marlander_lite.experiments.metrics.TrialMetrics` outcomes, the crashes
+split by touchdown speed): ``collisions``, ``crashes_too_fast`` (a contact faster than the task's touchdown limit,
+0.5 m/s relative to the pad), ``crashes_off_pad`` (a slow contact with anything but the drone's own pad, or off its
+centre), ``out_of_arena`` and ``timeouts``.
+
 ``marlander transfer POLICY`` prints the table and writes ``transfer.csv`` and ``transfer.json``.
 """
 
@@ -35,8 +40,8 @@ import numpy as np
 
 from marlander_lite import task, training_aids
 from marlander_lite.envs.options import policy_input
-from marlander_lite.episodes import LandingEpisodes
-from marlander_lite.experiments.metrics import wilson_interval
+from marlander_lite.episodes import LandingEpisodes, StepOutcome
+from marlander_lite.experiments.metrics import TrialMetrics, wilson_interval
 from marlander_lite.experiments.protocol import trial_seed
 from marlander_lite.policy_file import MLPPolicy, load_policy
 from marlander_lite.rotations import tilt_deg
@@ -115,6 +120,12 @@ class CellResult:
     tilt_limit_fraction: float
     approach_height: float
     wall_s: float
+    collisions: int | None = None
+    """Failed episodes by cause (None in matrices written before they were counted)."""
+    crashes_too_fast: int | None = None
+    crashes_off_pad: int | None = None
+    out_of_arena: int | None = None
+    timeouts: int | None = None
 
 
 def _find_column(name: str) -> Column:
@@ -161,6 +172,7 @@ def fly_cell(policy_path: str, column_name: str, row_name: str, episodes: int, s
     near_commands: list[np.ndarray] = []
     heights: list[float] = []
     tilt_steps = saturated_steps = 0
+    failures = dict.fromkeys(FAILURES, 0)
     try:
         for k in range(episodes):
             world.seed(trial_seed(seed, row.name, k))
@@ -190,6 +202,9 @@ def fly_cell(policy_path: str, column_name: str, row_name: str, episodes: int, s
                     break
                 obs = outcome.obs
             collisions += bool(outcome.min_separation[0] < cfg.collision_distance)
+            cause = failure_cause(outcome, cfg)
+            if cause is not None:
+                failures[cause] += 1
             if outcome.success[0]:
                 successes += 1
                 errors.extend(outcome.landing_error[0].tolist())
@@ -218,7 +233,21 @@ def fly_cell(policy_path: str, column_name: str, row_name: str, episodes: int, s
         tilt_limit_fraction=saturated_steps / tilt_steps if tilt_steps else float("nan"),
         approach_height=mean(heights),
         wall_s=time.perf_counter() - started,
+        **failures,
     )
+
+
+FAILURES = ("collisions", "crashes_too_fast", "crashes_off_pad", "out_of_arena", "timeouts")
+"""The :class:`CellResult` fields that count failed episodes by cause."""
+
+
+def failure_cause(outcome: StepOutcome, cfg: task.TaskConfig) -> str | None:
+    """Which of :data:`FAILURES` ended a failed episode (None for a success), from its last step."""
+    result = TrialMetrics.from_outcome(outcome, cfg.dt).outcome
+    if result == "crash":
+        too_fast = outcome.rel_speed[0][outcome.crashed[0]] > cfg.touchdown_speed_max
+        return "crashes_too_fast" if too_fast.any() else "crashes_off_pad"
+    return {"collision": "collisions", "out-of-arena": "out_of_arena", "timeout": "timeouts"}.get(result)
 
 
 @dataclass(frozen=True)
@@ -289,13 +318,15 @@ def format_flight_table(results: list[CellResult]) -> str:
     """Flight quality per cell: touchdown speed, p95 command near the pad, tilt-limit share, approach height."""
     lines = [
         "| row | column | touchdown m/s | command p95 near pad m/s | at tilt limit % | height at 0.5 m | "
-        "collisions % |",
-        "|---|---|---|---|---|---|---|",
+        "collisions % | failed: collision / crash too fast / crash off pad / out / timeout |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for r in results:
+        counts = [getattr(r, name) for name in FAILURES]
+        failed = " / ".join("-" if n is None else str(n) for n in counts)
         lines.append(
             f"| {r.row} | {r.column} | {r.touchdown_speed:.2f} | {r.command_near_pad_p95:.2f} | "
-            f"{100 * r.tilt_limit_fraction:.1f} | {r.approach_height:.2f} | {100 * r.collision_rate:.1f} |"
+            f"{100 * r.tilt_limit_fraction:.1f} | {r.approach_height:.2f} | {100 * r.collision_rate:.1f} | {failed} |"
         )
     return "\n".join(lines)
 
