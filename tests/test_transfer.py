@@ -221,11 +221,15 @@ def _fly_fixed_command(velocity: tuple[float, float, float]) -> tuple[StepOutcom
     return outcome, cfg
 
 
-def test_failure_causes_of_a_dive_and_a_hover() -> None:
-    """A straight dive at 2 m/s touches down 4x faster than the 0.5 m/s limit; a drone that holds still times out."""
+def test_failure_causes_of_a_dive_a_slow_descent_and_a_hover() -> None:
+    """A straight dive at 2 m/s touches down 4x faster than the 0.5 m/s limit; a slow straight descent from the random
+    start (no drone starts over its pad) touches the floor off the pad; a drone that holds still times out."""
     dive, cfg = _fly_fixed_command((0.0, 0.0, -2.0))
     assert dive.crashed[0].any() and dive.rel_speed[0][dive.crashed[0]].max() > cfg.touchdown_speed_max
     assert transfer.failure_cause(dive, cfg) == "crashes_too_fast"
+    descent, cfg = _fly_fixed_command((0.0, 0.0, -0.3))
+    assert descent.crashed[0].any() and descent.rel_speed[0][descent.crashed[0]].max() < cfg.touchdown_speed_max
+    assert transfer.failure_cause(descent, cfg) == "crashes_off_pad"
     hover, cfg = _fly_fixed_command((0.0, 0.0, 0.0))
     assert hover.truncated[0] and transfer.failure_cause(hover, cfg) == "timeouts"
 

@@ -121,11 +121,16 @@ class CellResult:
     approach_height: float
     wall_s: float
     collisions: int | None = None
-    """Failed episodes by cause (None in matrices written before they were counted)."""
+    """Episodes ended by two drones closer than the collision distance (None: matrix written before causes were
+    counted; so for the four below)."""
     crashes_too_fast: int | None = None
+    """Episodes ended by a touchdown faster than ``touchdown_speed_max`` relative to the pad."""
     crashes_off_pad: int | None = None
+    """Episodes ended by a slower contact anywhere but within the pad radius of the drone's own pad."""
     out_of_arena: int | None = None
+    """Episodes ended by a drone leaving the arena."""
     timeouts: int | None = None
+    """Episodes that reached the time limit without every drone landed."""
 
 
 def _find_column(name: str) -> Column:
