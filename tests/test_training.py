@@ -83,6 +83,16 @@ def test_a_run_writes_its_files_and_refuses_to_overwrite(tmp_path):
         train(tiny(4096), tmp_path / "run")
 
 
+def test_a_dynamics_range_the_simulator_cannot_fly_fails_at_the_start_and_leaves_nothing(tmp_path):
+    """A latency range beyond two policy periods (0.083 s at 24 Hz) is refused before the first rollout, so the same
+    --out can be used again at once (it used to fail at the first reset, leaving a run folder that refused a retry)."""
+    too_late = {"family": {**PRESETS["quick-cpu"].dynamics["family"], "latency_s": (0.0, 0.1)}}
+    with pytest.raises(ValueError, match="more than two policy periods"):
+        train(tiny(4096).replace(dynamics=too_late), tmp_path / "run")
+    assert not (tmp_path / "run").exists()
+    assert train(tiny(4096), tmp_path / "run").policy.is_file()
+
+
 def test_same_seed_gives_the_same_short_run(tmp_path):
     a = load_file(str(train(tiny(4096, seed=3), tmp_path / "a").policy))
     b = load_file(str(train(tiny(4096, seed=3), tmp_path / "b").policy))

@@ -319,7 +319,17 @@ class PointMassSwarm:
 
     # ------------------------------------------------------------------ robust training (DynamicsFamily)
     def _init_family(self, e: int, n: int) -> None:
-        """Per-drone dynamics arrays ``(num_envs, N, ...)``, set to the family's lower-middle until the first draw."""
+        """Per-drone dynamics arrays ``(num_envs, N, ...)``, set to the family's lower-middle until the first draw.
+
+        Refuses a latency range reaching beyond two policy periods here, before any draw, so that a training run with
+        it fails while it starts (and leaves nothing behind) rather than at its first reset.
+        """
+        highest_latency = self.family.to_dict()["latency_s"][1]
+        if highest_latency > 2.0 * self._dt:
+            raise ValueError(
+                f"latency_s up to {highest_latency:.3f} s is more than two policy periods ({2 * self._dt:.3f} s), "
+                "which the point mass does not model; lower the latency range or policy_hz."
+            )
         self._gain = np.empty((e, n, 3), order="F")
         self._turn = np.empty((e, n, 1), order="F")
         self._tan_tilt, self._thrust_max, self._thrust_min = (np.empty((e, n), order="F") for _ in range(3))
@@ -339,11 +349,6 @@ class PointMassSwarm:
     def _set_family(self, env_ids: np.ndarray, draw: dict[str, np.ndarray]) -> None:
         dt = self._dt
         latency = draw["latency_s"] / dt
-        if latency.max(initial=0.0) > 2.0:
-            raise ValueError(
-                f"latency_s up to {draw['latency_s'].max():.3f} s is more than two policy periods ({2 * dt:.3f} s), "
-                "which the point mass does not model; lower the latency range or policy_hz."
-            )
         self._gain[env_ids, :, 0] = self._gain[env_ids, :, 1] = 1.0 / draw["velocity_time_constant"]
         self._gain[env_ids, :, 2] = 1.0 / draw["vertical_time_constant"]
         self._turn[env_ids, :, 0] = 1.0 - np.exp(-dt / draw["attitude_time_constant"])
