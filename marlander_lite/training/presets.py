@@ -250,7 +250,7 @@ trains within 10 minutes on 2 cores:
 
 * 12 M steps instead of 16 M, with the step size decaying linearly from 5e-4 to zero. At a constant 3e-4, 12 M steps
   landed 2.6 cm from the pad centre on the point-mass UR10 plate; decaying from 3e-4 they landed 30 % of episodes.
-* a 64-64 critic: the update is bound by its matrix products, and the 128-128 critic was half of them.
+* a 64-64 critic: the update is bound by its matrix products, and the 128-128 critic made half of the PPO loss's.
 * 1024 consecutive pairs per CAPS gradient instead of the whole 4096-sample minibatch (at 4096 the aid doubled the
   cost of an update), and both cores for PyTorch's update (a sweep then trains one seed at a time by default).
 
