@@ -144,7 +144,8 @@ class LandingEpisodes:
         e, n = simulator.num_envs, self.task.num_drones
         self.num_envs, self.num_drones = e, n
         self.rng = np.random.default_rng(seed)
-        self.channel = ObservationChannel(self.sensing, e, n, self.task.dt, self.task.obs_per_drone)
+        exact = 3 if self.task.observe_previous_command else 0
+        self.channel = ObservationChannel(self.sensing, e, n, self.task.dt, self.task.obs_per_drone, exact)
         # A landed drone's centre rests landed_height above its pad along the pad normal: that is eq. 2's goal.
         self._goal_lift = self.task.landed_height * self.pad_normal
         self.steps = np.zeros(e, dtype=np.int64)
@@ -156,7 +157,8 @@ class LandingEpisodes:
         self.min_separation = np.full(e, np.inf)
         self.episode_return = np.zeros(e)
         self.previous_command = np.zeros((e, n, 3))
-        """Last velocity commands (m/s), for the smoothness training aid; zero after a reset."""
+        """Last velocity commands ``(num_envs, N, 3)`` m/s, zero after a reset: observed with
+        ``TaskConfig.observe_previous_command`` and compared by the smoothness training aid."""
 
     def seed(self, seed: int | None) -> None:
         """Restart the random generator: the same seed gives the same resets and noise."""
@@ -164,13 +166,14 @@ class LandingEpisodes:
 
     def true_observations(self) -> np.ndarray:
         """Eq. 2 observations of the current state without noise or latency, ``(num_envs, N, 13)``."""
-        return self._measure(self.sim.state())[2]
+        return self._measure(self.sim.state(), self.previous_command)[2]
 
-    def _measure(self, s: SwarmState) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _measure(self, s: SwarmState, command: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         rel_pos = s.pos - (s.pad_pos + self._goal_lift)
         rel_vel = s.vel - s.pad_vel
         pad_vel = s.pad_vel if self.task.observe_platform_velocity else None
-        return rel_pos, rel_vel, task.observe(rel_pos, s.quat, rel_vel, s.ang_vel, pad_vel)
+        command = command if self.task.observe_previous_command else None
+        return rel_pos, rel_vel, task.observe(rel_pos, s.quat, rel_vel, s.ang_vel, pad_vel, command)
 
     def pad_offset(self, rel_pos: np.ndarray) -> np.ndarray:
         """Distance of each drone from its pad centre within the pad plane, ``(num_envs, N)`` m.
@@ -189,7 +192,7 @@ class LandingEpisodes:
         ids = np.arange(self.num_envs) if env_ids is None else np.asarray(env_ids)
         self.sim.reset(ids, self.rng)
         s = self.sim.state().take(ids)
-        rel_pos, _, obs = self._measure(s)
+        rel_pos, _, obs = self._measure(s, np.zeros_like(s.vel))
         self.steps[ids] = 0
         self.landed[ids] = False
         self.prev_dist[ids] = vector_norm(rel_pos)
@@ -212,7 +215,7 @@ class LandingEpisodes:
             raise ValueError(f"Action batch has {velocity.shape[0]} environments; expected {self.num_envs}.")
         self.sim.step(velocity)
         s = self.sim.state()
-        rel_pos, rel_vel, obs = self._measure(s)
+        rel_pos, rel_vel, obs = self._measure(s, velocity)
         dist = vector_norm(rel_pos)
         speed = vector_norm(rel_vel)
         horizontal = self.pad_offset(rel_pos)
@@ -226,7 +229,7 @@ class LandingEpisodes:
                 velocity, rel_pos, s.vel, s.pad_vel, cfg, self.previous_command
             )
             r_drones -= penalty * active
-            self.previous_command[...] = velocity
+        self.previous_command[...] = velocity
         separation = task.min_separation(s.pos)
         collided = separation < cfg.collision_distance
         np.minimum(self.min_separation, separation, out=self.min_separation)

@@ -44,7 +44,7 @@ from pydantic import ConfigDict, Field, Strict, TypeAdapter, ValidationError, wi
 from safetensors import SafetensorError, safe_open
 from safetensors.numpy import load_file, save_file
 
-from marlander_lite.task import ACT_PER_DRONE, OBS_LIMITS, OBS_PER_DRONE, TaskConfig
+from marlander_lite.task import ACT_PER_DRONE, OBS_LIMITS, OBS_PER_DRONE, TaskConfig, observation_limits
 
 FORMAT = "marlander_lite.policy"
 FORMAT_VERSION = 1
@@ -100,8 +100,9 @@ class PolicyContract:
     """Widths of the hidden layers of the actor."""
     normalize_observations: Annotated[bool, Strict()]
     """Whether ``obs_mean``/``obs_var`` tensors standardise the input (VecNormalize statistics)."""
-    obs_per_drone: Literal[13, 16] = OBS_PER_DRONE
-    """Numbers per drone in the input: 13 (eq. 2), or 16 when the platform velocity is observed."""
+    obs_per_drone: Literal[13, 16, 19] = OBS_PER_DRONE
+    """Numbers per drone in the input: 13 (eq. 2), 16 with the platform velocity or the previous command, 19 with
+    both (``task`` says which)."""
     obs_clip: Annotated[Real, Field(gt=0, le=1e6)] = 10.0
     """Standardised inputs are clipped to +-obs_clip."""
     obs_epsilon: Annotated[Real, Field(ge=0, le=1)] = 1e-8
@@ -148,6 +149,26 @@ class PolicyContract:
                 "num_drones is null but neighbours is not set: neither a centralised nor a shared policy"
             )
 
+    def observation_options(self) -> dict[str, bool]:
+        """The ``TaskConfig`` fields that shape this policy's input: ``observe_platform_velocity`` and
+        ``observe_previous_command``, read from :attr:`task` (files written before the previous command could be
+        observed lack it: False; a contract without ``task`` at all: 16 numbers per drone mean the platform
+        velocity)."""
+        command = bool(self.task.get("observe_previous_command", False))
+        platform = self.task.get("observe_platform_velocity")
+        if platform is None:
+            platform = self.obs_per_drone - 3 * command > OBS_PER_DRONE
+        return {"observe_platform_velocity": bool(platform), "observe_previous_command": command}
+
+    def check_observation(self) -> None:
+        """Raise :class:`PolicyFileError` unless ``obs_per_drone`` is what :meth:`observation_options` ask for."""
+        options = self.observation_options()
+        expected = OBS_PER_DRONE + 3 * sum(options.values())
+        if self.obs_per_drone != expected:
+            raise PolicyFileError(
+                f"obs_per_drone is {self.obs_per_drone}, but the task's {options} make {expected} numbers per drone"
+            )
+
     def require_centralised(self, where: str) -> None:
         """Raise :class:`PolicyFileError` if this is a shared (N-free) policy, which ``where`` cannot fly."""
         if self.is_shared:
@@ -181,7 +202,7 @@ class PolicyContract:
         if self.obs_per_drone != task.obs_per_drone:
             problems.append(
                 f"it takes {self.obs_per_drone} numbers per drone, the task gives {task.obs_per_drone} "
-                "(TaskConfig.observe_platform_velocity differs)"
+                "(TaskConfig.observe_platform_velocity or observe_previous_command differs)"
             )
         if not np.isclose(self.policy_hz, task.policy_hz):
             problems.append(f"it acts at {self.policy_hz} Hz, the task at {task.policy_hz} Hz")
@@ -230,8 +251,8 @@ class MLPPolicy:
 
 def observation_bounds(contract: PolicyContract) -> np.ndarray:
     """``(obs_dim,)`` half-widths of the observation space: observations are clipped to ``task.OBS_LIMITS``."""
-    p, q, v, w = OBS_LIMITS
-    per_drone = np.repeat([p, q, v, w, v], [3, 4, 3, 3, 3])[: contract.obs_per_drone]
+    p, _, v, _ = OBS_LIMITS
+    per_drone = observation_limits(contract.obs_per_drone)
     if contract.neighbours is not None:  # neighbours' relative position and velocity span twice the bounds
         neighbour = np.repeat([2 * p, 2 * v, 1.0], [3, 3, 1])
         return np.concatenate([per_drone, np.tile(neighbour, contract.neighbours)])
@@ -358,6 +379,7 @@ def parse_contract(text: str, where: str = "contract") -> PolicyContract:
         fields = json.loads(text, object_pairs_hook=_no_duplicate_keys)
         contract = _contract_adapter().validate_python(fields)
         contract.check_kind()
+        contract.check_observation()
         return contract
     except (json.JSONDecodeError, RecursionError) as error:
         raise PolicyFileError(f"{where} is not valid JSON ({type(error).__name__}: {error}).") from None

@@ -90,13 +90,22 @@ class ObservationChannel:
     """Applies :class:`SensingConfig` to batched observations ``(num_envs, N, 13)``.
 
     Latency keeps a short history per environment and returns the observation from
-    ``latency_s`` ago, linearly interpolated between the two nearest policy steps.
+    ``latency_s`` ago, linearly interpolated between the two nearest policy steps. The last ``exact``
+    numbers of each drone's observation (its own previous command) are the policy's own and known at
+    once: they are passed on as they are now, without delay or noise.
     """
 
     def __init__(
-        self, config: SensingConfig, num_envs: int, num_drones: int, dt: float, obs_per_drone: int = OBS_PER_DRONE
+        self,
+        config: SensingConfig,
+        num_envs: int,
+        num_drones: int,
+        dt: float,
+        obs_per_drone: int = OBS_PER_DRONE,
+        exact: int = 0,
     ) -> None:
         self.config, self._dt = config, dt
+        self._measured = obs_per_drone - exact
         steps = config.latency_s / dt
         self._whole = int(np.floor(steps))
         self._frac = float(steps - self._whole)
@@ -109,6 +118,7 @@ class ObservationChannel:
         std[0:3], std[3:7] = config.pos_noise_std, config.quat_noise_std
         std[7:10], std[10:13] = config.vel_noise_std, config.ang_vel_noise_std
         std[13:] = config.vel_noise_std  # the platform velocity, when observed, is estimated like the drones' own
+        std[self._measured :] = 0.0
         self._std = std
 
     def reset(self, env_ids: np.ndarray, obs: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -126,6 +136,7 @@ class ObservationChannel:
         """Push the true observation of every env and return what the policy sees."""
         if self.config.is_perfect:
             return obs
+        now = obs[..., self._measured :]
         if self.config.latency_spread_s:
             self._history = np.roll(self._history, 1, axis=0)
             self._history[0] = obs
@@ -138,6 +149,7 @@ class ObservationChannel:
             self._history[0] = obs
             obs = (1.0 - self._frac) * self._history[self._whole] + self._frac * self._history[self._whole + 1]
             obs[..., 3:7] = quat_normalize(obs[..., 3:7])
+        obs[..., self._measured :] = now  # no-op unless delayed above
         return self._degrade(obs, rng)
 
     def _degrade(self, obs: np.ndarray, rng: np.random.Generator) -> np.ndarray:

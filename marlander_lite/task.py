@@ -43,6 +43,19 @@ OBS_LIMITS = (20.0, 1.0, 50.0, 200.0)
 """Bounds of |p| (m), |q|, |v| (m/s), |omega| (rad/s) per component: observations are clipped to
 them. Only a crash or a drone far outside the arena reaches them."""
 
+
+OBSERVATION_OPTIONS = ("observe_platform_velocity", "observe_previous_command")
+"""The ``TaskConfig`` switches that append to eq. 2's observation (3 numbers each, in this order): a policy
+file's choice, which every simulator and the deployment loop follow."""
+
+
+def observation_limits(obs_per_drone: int) -> np.ndarray:
+    """Half-widths of one drone's observation ``(obs_per_drone,)``: eq. 2's four parts bounded by
+    :data:`OBS_LIMITS`, then the extras (platform velocity, previous command), each bounded like a velocity."""
+    p, q, v, w = OBS_LIMITS
+    return np.repeat(np.array([p, q, v, w, v]), [3, 4, 3, 3, 6])[:obs_per_drone]
+
+
 CONTACT_NONE, CONTACT_OWN_PAD, CONTACT_OTHER = 0, 1, 2
 """Contact codes a simulator reports per drone: touching nothing, its own pad, or anything else."""
 
@@ -139,6 +152,11 @@ class TaskConfig:
     """Beyond the paper: append the platform's world velocity (3 numbers, m/s) to each drone's eq. 2 observation
     (16 numbers then). Eq. 2 only has velocities relative to the platform, from which a memoryless policy cannot
     tell how fast the pad moves; a motion-capture system measures it anyway. False keeps the paper's 13."""
+    observe_previous_command: bool = False
+    """Beyond the paper: append the drone's previous velocity command (3 numbers, m/s, zero after a reset) to its
+    observation, after the platform velocity when both are on. With it a memoryless policy sees what it asked for
+    next to how the drone moved, which tells a sluggish tracker from a brisk one (the last action in the input, as
+    in Hwangbo et al. 2019 and Kaufmann et al. 2023). It is known exactly: sensing noise and latency never touch it."""
 
     def __post_init__(self) -> None:
         checks: list[tuple[bool, str]] = [
@@ -205,8 +223,9 @@ class TaskConfig:
 
     @property
     def obs_per_drone(self) -> int:
-        """Length of one drone's observation: 13 (eq. 2), or 16 with ``observe_platform_velocity``."""
-        return OBS_PER_DRONE + 3 * bool(self.observe_platform_velocity)
+        """Length of one drone's observation: 13 (eq. 2), plus 3 with ``observe_platform_velocity`` and 3 more with
+        ``observe_previous_command``."""
+        return OBS_PER_DRONE + 3 * bool(self.observe_platform_velocity) + 3 * bool(self.observe_previous_command)
 
     @property
     def obs_dim(self) -> int:
@@ -236,8 +255,9 @@ def observe(
     rel_vel: np.ndarray,
     ang_vel: np.ndarray,
     pad_vel: np.ndarray | None = None,
+    previous_command: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Eq. 2: ``O_t^i = [p_t^i, q_t^i, v_t^i, omega_t^i]``, shape ``(..., 13)``.
+    """Eq. 2: ``O_t^i = [p_t^i, q_t^i, v_t^i, omega_t^i]``, shape ``(..., 13)`` (16 or 19 with the extras).
 
     Args:
         rel_pos: ``p``, drone position minus its goal point (own pad centre raised by
@@ -247,6 +267,8 @@ def observe(
         ang_vel: ``omega``, angular velocity, ``(..., 3)`` rad/s, world frame.
         pad_vel: only with ``TaskConfig.observe_platform_velocity`` (beyond the paper): the pad's
             world velocity ``(..., 3)`` m/s, appended as numbers 13-15.
+        previous_command: only with ``TaskConfig.observe_previous_command`` (beyond the paper): the velocity command
+            of the previous step ``(..., 3)`` m/s, appended last.
 
     Each part is clipped to :data:`OBS_LIMITS`; a unit quaternion is within ``[-1, 1]`` already.
     """
@@ -259,6 +281,8 @@ def observe(
     ]
     if pad_vel is not None:
         parts.append(np.clip(pad_vel, -v_max, v_max))
+    if previous_command is not None:
+        parts.append(np.clip(previous_command, -v_max, v_max))
     return np.concatenate(parts, axis=-1)
 
 

@@ -23,7 +23,7 @@ from marlander_lite.deploy.rehearsal import rehearse
 from marlander_lite.deploy.rehearsal.faults import FAULT_KINDS, FaultSpec
 from marlander_lite.deploy.rehearsal.mocap import SimulatedPoseSource
 from marlander_lite.deploy.rehearsal.world import SimulatedWorld, make_simulator
-from marlander_lite.policy_file import load_policy
+from marlander_lite.policy_file import PolicyContract, load_policy, save_policy
 
 matplotlib.use("Agg")
 
@@ -388,3 +388,35 @@ def test_a_drone_resting_on_a_moving_plate_next_to_its_pad_rides_along(lab):
     assert world.pad_landed.all() and np.linalg.norm(world.pad_positions() - pads, axis=1).min() > 0.15
     np.testing.assert_allclose(offset[0, :2], [0.0, 0.17], atol=0.02)
     world.close()
+
+
+def test_a_policy_that_observes_its_previous_command_reads_the_setpoint_last_sent(lab, tmp_path):
+    # The P-controller of conftest.py less a quarter of the drone's previous command (a gentler descent).
+    weight, bias = np.zeros((6, 32)), np.zeros(6)
+    for i in range(2):
+        weight[3 * i : 3 * i + 3, 16 * i : 16 * i + 3] = -np.diag([1.0, 1.0, 0.4])
+        weight[3 * i : 3 * i + 3, 16 * i + 13 : 16 * i + 16] = -0.25 / 3.0 * np.eye(3)  # m/s back to an action
+        bias[3 * i + 2] = -0.4 * 0.05
+    contract = PolicyContract(
+        num_drones=2, max_speed=3.0, policy_hz=24.0, activation="relu", hidden_sizes=(),
+        normalize_observations=False, obs_per_drone=16, task={"observe_previous_command": True},
+    )  # fmt: skip
+    path = save_policy(
+        tmp_path / "previous_command.safetensors", contract, {"actor.0.weight": weight, "actor.0.bias": bias}
+    )
+    log_path = tmp_path / "flight.jsonl"
+    result = rehearse(lab, path, log_path=log_path)
+    assert result.mission.success and result.safe, result.summary()
+    log = read_flight_log(log_path)
+    sent = np.zeros((2, 3))  # what each drone was last told under the policy: nothing yet
+    checked = 0
+    for tick in log.ticks:
+        if tick["obs"] is not None:
+            obs = np.asarray(tick["obs"])
+            assert obs.shape == (2, 16)
+            np.testing.assert_allclose(obs[:, 13:], sent, atol=1e-9)
+            checked += 1
+        for i, command in enumerate(tick["cmd"]):
+            if command["kind"] in ("velocity", "hover"):
+                sent[i] = command.get("v", (0.0, 0.0, 0.0))
+    assert checked > 10

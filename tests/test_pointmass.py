@@ -185,6 +185,31 @@ def test_latency_of_one_step_returns_the_previous_observation():
         np.testing.assert_allclose(seen[k], truth[k], atol=1e-12)
 
 
+def test_the_previous_command_is_observed_exactly_and_at_once():
+    # Sensing noise and a one-step delay degrade eq. 2 and the platform velocity, never the policy's own command.
+    sensing = SensingConfig(pos_noise_std=0.01, vel_noise_std=0.02, latency_s=TaskConfig().dt)
+    _, episodes = make_episodes(
+        num_envs=3, num_drones=2, platform="moving-linear", sensing=sensing,
+        observe_platform_velocity=True, observe_previous_command=True,
+    )  # fmt: skip
+    first = episodes.reset()
+    assert first.shape == (3, 2, 19)
+    np.testing.assert_array_equal(first[..., 16:], 0.0)  # nothing commanded yet
+    rng = np.random.default_rng(1)
+    for _ in range(4):
+        action = rng.uniform(-1, 1, (3, 6))
+        truth_before = episodes.true_observations()
+        outcome = episodes.step(action)
+        np.testing.assert_array_equal(outcome.obs[..., 16:], action.reshape(3, 2, 3) * 3.0)
+        np.testing.assert_array_equal(episodes.true_observations()[..., 16:], action.reshape(3, 2, 3) * 3.0)
+        # the measured part is a step late: near the state before this step, not the one after it
+        late = np.abs(outcome.obs[..., 0:3] - truth_before[..., 0:3]).max()
+        assert late < 0.06
+    episodes.reset(np.array([1]))
+    np.testing.assert_array_equal(episodes.previous_command[1], 0.0)
+    np.testing.assert_array_equal(episodes.true_observations()[1, :, 16:], 0.0)
+
+
 def test_position_noise_has_the_configured_spread():
     _, episodes = make_episodes(num_envs=2000, sensing=SensingConfig(pos_noise_std=0.01))
     outcome = episodes.step(np.zeros((2000, 3)))
@@ -195,13 +220,18 @@ def test_position_noise_has_the_configured_spread():
 # ---------------------------------------------------------------------------- API checkers
 
 
-def test_gymnasium_and_sb3_checkers_pass():
-    env = gym.make(ENV_ID, num_drones=2)
+@pytest.mark.parametrize("extras", [{}, {"observe_platform_velocity": True, "observe_previous_command": True}])
+def test_gymnasium_and_sb3_checkers_pass(extras):
+    env = gym.make(ENV_ID, num_drones=2, platform="moving-arc", task=extras)
     gym_check_env(env.unwrapped, skip_render_check=True)
     sb3_check_env(env.unwrapped)
 
 
 def test_pettingzoo_checkers_pass():
+    parallel_api_test(
+        marlander_lite.make_parallel_env("pointmass", num_drones=3, task={"observe_previous_command": True}),
+        num_cycles=300,
+    )
     parallel_api_test(marlander_lite.make_parallel_env("pointmass", num_drones=3), num_cycles=300)
     parallel_seed_test(lambda: marlander_lite.make_parallel_env("pointmass", num_drones=3))
 

@@ -175,7 +175,7 @@ def test_zero_variance_without_epsilon_and_overflowing_weights_are_refused(tmp_p
         ({"normalize_observations": 1}, r"normalize_observations: Input should be a valid boolean"),
         ({"hidden_sizes": [8.5]}, r"hidden_sizes.0: Input should be a valid integer"),
         ({"hidden_sizes": "8"}, r"hidden_sizes: Input should be a valid tuple"),
-        ({"obs_per_drone": 14}, r"obs_per_drone: Input should be 13 or 16"),
+        ({"obs_per_drone": 14}, r"obs_per_drone: Input should be 13, 16 or 19"),
         ({"obs_clip": -1.0}, r"obs_clip: Input should be greater than 0"),
         ({"surprise": 1}, r"surprise: unknown field"),
     ],
@@ -274,4 +274,32 @@ def test_mixed_up_shared_contracts_are_refused(tmp_path, changes, message):
 def test_a_shared_policy_with_the_wrong_neighbour_count_is_refused(tmp_path):
     path = write_raw(tmp_path / "bad.safetensors", small_contract(num_drones=None, neighbours=3), shared_tensors(2))
     with pytest.raises(PolicyFileError, match=r"layers 34 -> 8 -> 3.*actor.0.weight has shape \[8, 27\]"):
+        load_policy(path)
+
+
+def test_the_task_says_what_the_observation_holds_beyond_eq2(tmp_path):
+    def contract(obs_per_drone: int, **task: bool) -> PolicyContract:
+        return PolicyContract(
+            num_drones=1, max_speed=3.0, policy_hz=24.0, activation="relu", hidden_sizes=(),
+            normalize_observations=False, obs_per_drone=obs_per_drone, task=task,
+        )  # fmt: skip
+
+    def options(platform: bool, command: bool) -> dict[str, bool]:
+        return {"observe_platform_velocity": platform, "observe_previous_command": command}
+
+    # a file of v0.2 and earlier: 16 numbers per drone and no word on the previous command mean the platform velocity
+    assert contract(16).observation_options() == options(True, False)
+    assert contract(16, observe_platform_velocity=True).observation_options() == options(True, False)
+    assert contract(16, observe_previous_command=True).observation_options() == options(False, True)
+    both = contract(19, observe_platform_velocity=True, observe_previous_command=True)
+    assert both.observation_options() == options(True, True)
+    task = TaskConfig(num_drones=1, **both.observation_options())
+    assert task.obs_per_drone == 19
+    both.check_compatible(task)
+    with pytest.raises(PolicyFileError, match="observe_platform_velocity or observe_previous_command differs"):
+        both.check_compatible(TaskConfig(num_drones=1, observe_platform_velocity=True))
+    tensors = {"actor.0.weight": np.zeros((3, 16)), "actor.0.bias": np.zeros(3)}
+    fields = asdict(contract(16, observe_platform_velocity=True, observe_previous_command=True))
+    path = write_raw(tmp_path / "bad.safetensors", fields, tensors)
+    with pytest.raises(PolicyFileError, match=r"obs_per_drone is 16, but the task's .* make 19 numbers per drone"):
         load_policy(path)

@@ -21,6 +21,21 @@ def test_observation_is_eq2_concatenation():
     np.testing.assert_array_equal(obs[0], p + q + v + w)
 
 
+def test_the_extras_follow_eq2_platform_velocity_first():
+    p, q, v, w = [1.0, -2.0, 0.5], [0.0, 0.0, 0.0, 1.0], [0.1, 0.2, -0.3], [0.01, 0.02, 0.03]
+    pad_vel, command = [0.4, 0.0, 0.0], [-1.0, 2.0, 0.5]
+    obs = task.observe(*(np.array([x]) for x in (p, q, v, w, pad_vel, command)))
+    np.testing.assert_array_equal(obs[0], p + q + v + w + pad_vel + command)
+    only_command = task.observe(*(np.array([x]) for x in (p, q, v, w)), None, np.array([command]))
+    np.testing.assert_array_equal(only_command[0], p + q + v + w + command)
+    sizes = [
+        TaskConfig(observe_platform_velocity=a, observe_previous_command=b).obs_per_drone
+        for a in (0, 1)
+        for b in (0, 1)
+    ]
+    assert sizes == [13, 16, 16, 19]
+
+
 def test_batched_observation_flattens_drone_by_drone():
     e, n = 3, 2
     rel_pos = np.arange(e * n * 3, dtype=float).reshape(e, n, 3)

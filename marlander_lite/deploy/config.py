@@ -56,7 +56,7 @@ from marlander_lite.deploy.sections import (
 )
 from marlander_lite.platforms import PlateGeometry
 from marlander_lite.policy_file import MLPPolicy, PolicyFileError, load_policy, read_contract
-from marlander_lite.task import OBS_PER_DRONE, TaskConfig
+from marlander_lite.task import TaskConfig
 
 __all__ = [
     "EXAMPLE_CONFIG",
@@ -204,17 +204,20 @@ class LabConfig:
         """The pad of each drone, in drone order."""
         return [self.pads[d.pad] for d in self.drones]
 
-    def task_config(self, observe_platform_velocity: bool = False) -> TaskConfig:
+    def task_config(
+        self, observe_platform_velocity: bool = False, observe_previous_command: bool = False
+    ) -> TaskConfig:
         """The MDP constants the policy must have been trained with.
 
-        ``observe_platform_velocity`` is the policy's choice, not the lab's: pass
-        ``contract.obs_per_drone > 13`` of its policy file (see :func:`load_lab_policy`).
+        What the observation holds beyond eq. 2 is the policy's choice, not the lab's: pass
+        ``**contract.observation_options()`` of its policy file (see :func:`load_lab_policy`).
         """
         return TaskConfig(
             num_drones=self.num_drones,
             max_speed=self.limits.policy_max_speed,
             policy_hz=self.rates.policy_hz,
             observe_platform_velocity=observe_platform_velocity,
+            observe_previous_command=observe_previous_command,
         )
 
     def with_drones(self, num_drones: int, geometry: PlateGeometry | None = None, body: str = "plate") -> LabConfig:
@@ -270,7 +273,7 @@ def load_lab_policy(path: str | Path, lab: LabConfig) -> MLPPolicy:
             f"{lab.num_drones} drones, or a shared policy (any number of drones, e.g. "
             "data/policies/shared-quick-local.safetensors)."
         )
-    task = lab.task_config(contract.obs_per_drone > OBS_PER_DRONE)
+    task = lab.task_config(**contract.observation_options())
     return load_policy(path, task, shared=contract.is_shared)
 
 

@@ -51,7 +51,6 @@ from marlander_lite.deploy.pose_sources import Clock, PoseFrame, PoseSource
 from marlander_lite.deploy.results import MissionResult
 from marlander_lite.deploy.runner import InvalidAction, Policy, PolicyRunner, describe_filtering
 from marlander_lite.deploy.safety import Event, EventKind, SafetyMonitor
-from marlander_lite.task import OBS_PER_DRONE
 
 
 class Mission(LandingControl):
@@ -86,7 +85,7 @@ class Mission(LandingControl):
         self.lab, self.source, self.link, self.clock, self.log = lab, source, link, clock, log
         self.hooks = list(hooks)
         contract = getattr(policy, "contract", None)
-        self.task = lab.task_config(contract is not None and contract.obs_per_drone > OBS_PER_DRONE)
+        self.task = lab.task_config(**(contract.observation_options() if contract is not None else {}))
         sf = lab.safety_filter
         self.runner = PolicyRunner(policy, self.task, lab.limits.max_speed, sf.filter_config() if sf.enabled else None)
         self.estimator = SwarmEstimator(lab, estimator, landed_height=self.task.landed_height)
@@ -364,6 +363,7 @@ class Mission(LandingControl):
                 for i in np.flatnonzero(flying & np.array([p in UNDER_POLICY for p in self.phase])):
                     v = np.zeros(3) if hover else self.output.velocity[i]
                     self.link.send_velocity(i, v)
+                    self.runner.previous_command[i] = v
                     self._set_phase(i, DronePhase.HOVER if hover else DronePhase.POLICY)
                     self.book.commands[i] = {"kind": "hover" if hover else "velocity", "v": rounded(v)}
                     if not hover:

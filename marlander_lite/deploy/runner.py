@@ -85,6 +85,9 @@ class PolicyRunner:
         """``k`` of a shared policy (its input holds the k nearest neighbours); None for a centralised one."""
         self.radius: float | None = None if contract is None else contract.neighbour_radius
         """Sensing range of a shared policy (m); None: the k nearest at any distance."""
+        self.previous_command = np.zeros((task_config.num_drones, 3))
+        """The velocity setpoint last sent to each drone under the policy ``(N, 3)`` m/s (zero for a hover), which a
+        policy with ``TaskConfig.observe_previous_command`` reads; the mission keeps it up to date."""
 
     @property
     def shared(self) -> bool:
@@ -92,9 +95,11 @@ class PolicyRunner:
         return self.neighbours is not None
 
     def observe(self, est: SwarmEstimate) -> np.ndarray:
-        """Eq. 2 for every drone, ``(N, 13)`` (``(N, 16)`` when the policy also observes the platform velocity)."""
+        """Eq. 2 for every drone, ``(N, 13)``, with the extras the policy asks for (``(N, 16)`` or ``(N, 19)``: the
+        platform velocity, the previous command)."""
         pad_vel = est.pad_vel if self.task.observe_platform_velocity else None
-        return task.observe(est.pos - est.goal, est.quat, est.vel - est.pad_vel, est.ang_vel, pad_vel)
+        command = self.previous_command if self.task.observe_previous_command else None
+        return task.observe(est.pos - est.goal, est.quat, est.vel - est.pad_vel, est.ang_vel, pad_vel, command)
 
     def policy_input(self, obs: np.ndarray, goals: np.ndarray | None = None) -> np.ndarray:
         """What the network reads: ``(1, 13 N)`` for a centralised policy, ``(N, 13 + 7 k)`` for a shared one.

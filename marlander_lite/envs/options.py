@@ -27,7 +27,7 @@ from gymnasium import spaces
 
 from marlander_lite.platforms import PLATFORM_KINDS, PlatformConfig, PlatformKind
 from marlander_lite.sensing import SensingConfig
-from marlander_lite.task import ACT_PER_DRONE, OBS_LIMITS, TaskConfig
+from marlander_lite.task import ACT_PER_DRONE, TaskConfig, observation_limits
 
 if TYPE_CHECKING:
     from marlander_lite.episodes import Simulator
@@ -40,7 +40,6 @@ OptionsT = TypeVar("OptionsT", bound="EnvOptions")
 ConfigT = TypeVar("ConfigT")
 
 # Bounds of one drone's observation; the optional platform velocity has the velocity bound.
-_OBS_HIGH = np.repeat(np.array((*OBS_LIMITS, OBS_LIMITS[2]), dtype=np.float32), (3, 4, 3, 3, 3))
 
 
 def _is_count(value: object) -> bool:
@@ -186,7 +185,7 @@ class EnvOptions:
 
 def drone_observation_space(task: TaskConfig) -> spaces.Box:
     """One drone's eq. 2 observation: ``(13,)`` float32 (``(16,)`` with ``observe_platform_velocity``)."""
-    high = _OBS_HIGH[: task.obs_per_drone]
+    high = observation_limits(task.obs_per_drone).astype(np.float32)
     return spaces.Box(-high, high, dtype=np.float32)
 
 
@@ -197,7 +196,7 @@ def drone_action_space() -> spaces.Box:
 
 def centralised_observation_space(task: TaskConfig) -> spaces.Box:
     """The paper's flattened input: ``(13 N,)`` float32 (``(16 N,)`` with ``observe_platform_velocity``)."""
-    high = np.tile(_OBS_HIGH[: task.obs_per_drone], task.num_drones)
+    high = np.tile(observation_limits(task.obs_per_drone).astype(np.float32), task.num_drones)
     return spaces.Box(-high, high, dtype=np.float32)
 
 

@@ -26,7 +26,7 @@ from marlander_lite.experiments import apf
 from marlander_lite.experiments.apf import APFConfig
 from marlander_lite.platforms import PlateGeometry
 from marlander_lite.policy_file import MLPPolicy, load_policy, read_contract
-from marlander_lite.task import ACT_PER_DRONE, OBS_PER_DRONE, TaskConfig
+from marlander_lite.task import ACT_PER_DRONE, TaskConfig
 
 ControllerName = Literal["marlander", "baseline", "single-agent-apf", "marlander-plus", "baseline-tuned"]
 CONTROLLERS: tuple[str, ...] = get_args(ControllerName)
@@ -207,10 +207,13 @@ class ControllerSpec:
     def __post_init__(self) -> None:
         check_controller_name(self.name)
 
-    def observes_platform_velocity(self) -> bool:
-        """Whether this controller's policy file asks for the platform velocity in the observation."""
+    def observation_options(self) -> dict[str, bool]:
+        """What this controller's policy file asks for in the observation beyond eq. 2 (``TaskConfig`` fields;
+        see ``PolicyContract.observation_options``); nothing for the baseline."""
         path = self.resolved_policy_path
-        return path is not None and path.is_file() and read_contract(path).obs_per_drone > OBS_PER_DRONE
+        if path is None or not path.is_file():
+            return {}
+        return read_contract(path).observation_options()
 
     @property
     def resolved_policy_path(self) -> Path | None:

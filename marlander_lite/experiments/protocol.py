@@ -181,14 +181,12 @@ class ProtocolConfig:
     def task(self, controller_name: str | None = None) -> TaskConfig:
         """The task of every trial: the defaults with ``num_drones`` and the time limit.
 
-        With ``controller_name``, the observation also carries the platform velocity if that
-        controller's policy file asks for it (``TaskConfig.observe_platform_velocity``). The trials'
-        starts do not depend on it.
+        With ``controller_name``, the observation also carries the platform velocity or the previous command if
+        that controller's policy file asks for them (``TaskConfig.observe_platform_velocity``,
+        ``observe_previous_command``). The trials' starts do not depend on them.
         """
-        observe = controller_name is not None and self.spec(controller_name).observes_platform_velocity()
-        return TaskConfig(
-            num_drones=self.num_drones, episode_seconds=self.time_limit_s, observe_platform_velocity=observe
-        )
+        observe = self.spec(controller_name).observation_options() if controller_name is not None else {}
+        return TaskConfig(num_drones=self.num_drones, episode_seconds=self.time_limit_s, **observe)
 
     def sensing_config(self) -> SensingConfig:
         return SensingConfig.vicon() if self.sensing == "vicon" else SensingConfig()

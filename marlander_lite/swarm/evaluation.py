@@ -45,7 +45,7 @@ from marlander_lite.policy_file import load_policy, read_contract
 from marlander_lite.sensing import SensingConfig
 from marlander_lite.swarm.policy import SharedPolicy
 from marlander_lite.swarm.safety_filter import BatchAct, with_safety_filter
-from marlander_lite.task import OBS_PER_DRONE, TaskConfig
+from marlander_lite.task import TaskConfig
 
 SCALING_CONTROLLERS = ("shared", "shared-apf", "shared-filter", "centralised", "baseline")
 
@@ -234,8 +234,8 @@ def evaluate_cell(
     platform = platform or PlatformConfig()
     # A PyBullet CrazyflieSwarm holds one world: its trials are flown one after another.
     num_envs = 1 if simulator == "crazyflie" else min(num_envs, trials)
-    if policy_path is not None and read_contract(policy_path).obs_per_drone > OBS_PER_DRONE:
-        task_changes = {**(task_changes or {}), "observe_platform_velocity": True}  # a policy that asks for it
+    if policy_path is not None:  # what the policy asks for in its input beyond eq. 2
+        task_changes = {**(task_changes or {}), **read_contract(policy_path).observation_options()}
     episodes = make_episodes(
         num_drones, num_envs, seed, simulator, platform, task_changes=task_changes, **(simulator_options or {})
     )

@@ -37,7 +37,14 @@ QUICKSTART_PRESETS = ("quick-cpu-smooth", "quick-cpu")
 """What ``marlander quickstart`` may train, its default first."""
 TRAIN_SENSING = ("perfect", "vicon", "noisy", "robust")
 """The observation models a training run may use (``TrainConfig.sensing``)."""
-KEPT_WHEN_FINE_TUNING = ("num_drones", "net_arch", "critic_arch", "activation", "task.observe_platform_velocity")
+KEPT_WHEN_FINE_TUNING = (
+    "num_drones",
+    "net_arch",
+    "critic_arch",
+    "activation",
+    "task.observe_platform_velocity",
+    "task.observe_previous_command",
+)
 """Fields ``--init-from`` takes from the loaded run (its model is loaded whole): setting them is refused."""
 
 TRAIN_FIELDS = {

@@ -42,7 +42,7 @@ import marlander_lite
 from marlander_lite.envs.options import EnvOptions
 from marlander_lite.make import make_vec_env
 from marlander_lite.platforms import PlatformConfig
-from marlander_lite.task import TaskConfig
+from marlander_lite.task import OBSERVATION_OPTIONS, TaskConfig
 from marlander_lite.training import warm_start
 from marlander_lite.training.export import export_policy
 from marlander_lite.training.presets import TrainConfig
@@ -220,8 +220,8 @@ def continue_from(config: TrainConfig, run_dir: str | Path) -> TrainConfig:
             "pass a directory written by 'marlander train'."
         )
     source = TrainConfig.from_dict(read_run_record(files, "--init-from")["train"])
-    observe = bool(source.task.get("observe_platform_velocity", False))
-    task = {**config.task, "observe_platform_velocity": observe}
+    observe = {name: bool(source.task.get(name, False)) for name in OBSERVATION_OPTIONS}
+    task = {**config.task, **observe}
     # The model is loaded whole from model.zip, so its networks are the source's; the saved config must say so.
     networks = {"net_arch": source.net_arch, "critic_arch": source.critic_arch, "activation": source.activation}
     return config.replace(init_from=str(run_dir), num_drones=source.num_drones, task=task, **networks)

@@ -50,7 +50,7 @@ def continue_from_policy(config: TrainConfig, policy_path: str | Path) -> TrainC
             f"--init-from {policy_path}: fine-tuning from a policy file needs observation normalisation on both "
             "sides (the file's statistics seed the normaliser); train from its run directory instead."
         )
-    task = {**config.task, "observe_platform_velocity": contract.obs_per_drone == 16}
+    task = {**config.task, **contract.observation_options()}
     return config.replace(
         init_from=str(policy_path),
         num_drones=int(contract.num_drones or 1),
