@@ -95,8 +95,11 @@ class TaskConfig:
     """Smallest distance between two drones at the start (m)."""
     spawn_near_pad_fraction: float = 0.0
     """Training aid, not in the paper: this fraction of episodes starts with every drone within 0.3 m
-    horizontally and 0.15-1.0 m above its own pad, so landings are practised from the first update.
-    0 (the default, used for every evaluation) keeps the paper's uniform start."""
+    horizontally and ``spawn_near_pad_height_min``-1.0 m above its own pad, so landings are practised from the first
+    update. 0 (the default, used for every evaluation) keeps the paper's uniform start."""
+    spawn_near_pad_height_min: float = 0.15
+    """Lowest start above the pad of a near-pad start (m): lower puts drones a few centimetres up beside a pad that may
+    be moving away, where a policy must learn to wait before it descends."""
     alpha: float = 10.0
     """Position shaping factor of eq. 5 (reward per metre of approach)."""
     beta: float = -0.02
@@ -201,6 +204,10 @@ class TaskConfig:
             (
                 self.spawn_height_min + self.spawn_ceiling_margin < self.arena_height,
                 "the spawn heights do not fit in the arena",
+            ),
+            (
+                0.0 < self.spawn_near_pad_height_min < 1.0,
+                "spawn_near_pad_height_min must be above 0 m and below 1 m (the highest near-pad start)",
             ),
         ]
         for name in (f.name for f in dataclasses.fields(self)):
@@ -484,7 +491,8 @@ def sample_spawn_positions(
             k = int(near.sum())
             angle = rng.uniform(0, 2 * np.pi, (k, config.num_drones))
             radius = 0.3 * np.sqrt(rng.random((k, config.num_drones)))
-            offset = np.stack((radius * np.cos(angle), radius * np.sin(angle), rng.uniform(0.15, 1.0, angle.shape)), -1)
+            height = rng.uniform(config.spawn_near_pad_height_min, 1.0, angle.shape)
+            offset = np.stack((radius * np.cos(angle), radius * np.sin(angle), height), -1)
             u[near] = pads[ids[near]] + offset
         return u
 

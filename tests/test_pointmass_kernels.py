@@ -48,12 +48,17 @@ def test_min_separation_kernel_propagates_nan_and_inf_like_numpy():
     assert np.isnan(ours[[1, 3]]).all() and np.isfinite(ours[[0, 2]]).all()
 
 
-def spawn(monkeypatch, engine, num_drones, near_fraction, separation, swarms=60, seed=3):
+def spawn(monkeypatch, engine, num_drones, near_fraction, separation, swarms=60, seed=3, near_low=0.15):
     """Starting positions of ``swarms`` swarms over plates of random heights with pads 0.25 m apart (near-pad
     starts included), and the next numbers of the generator, drawn through ``engine``."""
     monkeypatch.setenv(kernels.ENGINE_VARIABLE, engine)
     rng = np.random.default_rng(seed)
-    cfg = TaskConfig(num_drones=num_drones, spawn_near_pad_fraction=near_fraction, spawn_separation=separation)
+    cfg = TaskConfig(
+        num_drones=num_drones,
+        spawn_near_pad_fraction=near_fraction,
+        spawn_separation=separation,
+        spawn_near_pad_height_min=near_low,
+    )
     grid = np.stack([0.25 * (np.arange(num_drones) % 4), 0.25 * (np.arange(num_drones) // 4), np.zeros(num_drones)], -1)
     pads = rng.uniform(-1, 1, (swarms, 1, 3)) + grid
     pos = task.sample_spawn_positions(rng, rng.uniform(0, 0.8, swarms), cfg, pads)
@@ -64,10 +69,13 @@ def spawn(monkeypatch, engine, num_drones, near_fraction, separation, swarms=60,
 @pytest.mark.parametrize("near_fraction", [0.0, 0.25, 1.0])
 def test_compiled_spawn_sampler_is_the_reference_to_the_last_bit(monkeypatch, num_drones, near_fraction):
     separation = 0.5 if near_fraction == 0 else 0.2  # 16 drones near pads 0.25 m apart cannot be 0.5 m apart
-    pos, after = spawn(monkeypatch, "numpy", num_drones, near_fraction, separation)
-    compiled_pos, compiled_after = spawn(monkeypatch, "numba", num_drones, near_fraction, separation)
-    np.testing.assert_array_equal(compiled_pos, pos)
-    np.testing.assert_array_equal(compiled_after, after)  # the generator is left in the same state
+    for near_low in (0.15, 0.05):
+        pos, after = spawn(monkeypatch, "numpy", num_drones, near_fraction, separation, near_low=near_low)
+        compiled_pos, compiled_after = spawn(
+            monkeypatch, "numba", num_drones, near_fraction, separation, near_low=near_low
+        )
+        np.testing.assert_array_equal(compiled_pos, pos)
+        np.testing.assert_array_equal(compiled_after, after)  # the generator is left in the same state
     if num_drones > 1:  # and the placement is what the task asks for, measured independently
         assert brute_force_min_separation(pos).min() >= separation
 

@@ -214,6 +214,18 @@ def test_spawn_positions_respect_arena_height_and_separation():
     assert task.min_separation(pos).min() >= cfg.spawn_separation
 
 
+def test_near_pad_starts_are_within_their_stated_box():
+    rng = np.random.default_rng(1)
+    cfg = TaskConfig(num_drones=2, spawn_near_pad_fraction=1.0, spawn_near_pad_height_min=0.05, spawn_separation=0.2)
+    pads = np.zeros((400, 2, 3))
+    pads[:, 1, 0] = 0.4
+    pos = task.sample_spawn_positions(rng, np.zeros(400), cfg, pads)
+    offset = pos - pads
+    assert (np.hypot(offset[..., 0], offset[..., 1]) <= 0.3).all()
+    assert offset[..., 2].min() >= 0.05 and offset[..., 2].max() <= 1.0
+    assert offset[..., 2].min() < 0.1  # the new low starts are drawn, not just allowed
+
+
 @pytest.mark.parametrize(
     ("field", "value", "message"),
     [
@@ -222,6 +234,8 @@ def test_spawn_positions_respect_arena_height_and_separation():
         ("beta", 0.5, "beta"),
         ("alpha", math.nan, "finite"),
         ("collision_distance", -0.1, "collision_distance"),
+        ("spawn_near_pad_height_min", 0.0, "spawn_near_pad_height_min must be above 0 m and below 1 m"),
+        ("spawn_near_pad_height_min", 1.0, "spawn_near_pad_height_min"),
     ],
 )
 def test_invalid_task_config_names_the_problem(field, value, message):

@@ -35,14 +35,15 @@ def spawn_rounds(
     separation: float,
     rounds: int,
     near_draws: np.ndarray,
+    near_low: float = 0.15,
 ) -> tuple[np.ndarray, int, int]:
     """Up to ``rounds`` rounds of the reference's ``draw(ids)`` and separation check, in one call.
 
     A round draws uniform positions for the swarms ``ids`` of ``pos`` ``(m, N, 3)``, then, for those of them that
-    start near their pads, every angle, every radius and every height offset (in that order) into ``near_draws``
-    ``(3, m N)``, and then keeps the swarms whose pairs are too close (:func:`swarms_too_close`). A round that drew
-    near-pad starts stops the loop before its check: their cosines and sines are numpy's to compute.
-    Returns ``(ids, near-pad swarms of the last round, rounds done)``.
+    start near their pads, every angle, every radius and every height offset (in that order, heights from
+    ``near_low`` to 1 m) into ``near_draws`` ``(3, m N)``, and then keeps the swarms whose pairs are too close
+    (:func:`swarms_too_close`). A round that drew near-pad starts stops the loop before its check: their cosines and
+    sines are numpy's to compute. Returns ``(ids, near-pad swarms of the last round, rounds done)``.
     """
     n = pos.shape[1]
     span = 2.0 * half_width
@@ -64,7 +65,7 @@ def spawn_rounds(
             for j in range(size):
                 near_draws[1, j] = 0.3 * math.sqrt(rng.random())
             for j in range(size):
-                near_draws[2, j] = rng.uniform(0.15, 1.0)
+                near_draws[2, j] = rng.uniform(near_low, 1.0)
             return ids, count, done + 1
         ids = swarms_too_close(pos, ids, separation)
         if ids.size == 0:
@@ -131,7 +132,7 @@ def sample_spawn_positions(
     ids, rounds = np.arange(m), max_tries  # a check after each draw, as many as the reference makes
     while rounds:
         args = (rng, pos, ids, z_lo, z_hi, config.arena_half_width, near_pad, config.spawn_separation)
-        ids, near, done = spawn_rounds(*args, rounds, near_draws)
+        ids, near, done = spawn_rounds(*args, rounds, near_draws, config.spawn_near_pad_height_min)
         rounds -= done
         if near:  # the round stopped before its check: place the near-pad starts, then check
             angle = near_draws[0, : near * n]
