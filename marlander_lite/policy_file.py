@@ -44,7 +44,14 @@ from pydantic import ConfigDict, Field, Strict, TypeAdapter, ValidationError, wi
 from safetensors import SafetensorError, safe_open
 from safetensors.numpy import load_file, save_file
 
-from marlander_lite.task import ACT_PER_DRONE, OBS_LIMITS, OBS_PER_DRONE, TaskConfig, observation_limits
+from marlander_lite.task import (
+    ACT_PER_DRONE,
+    OBS_LIMITS,
+    OBS_PER_DRONE,
+    OBSERVATION_OPTIONS,
+    TaskConfig,
+    observation_limits,
+)
 
 FORMAT = "marlander_lite.policy"
 FORMAT_VERSION = 1
@@ -158,7 +165,8 @@ class PolicyContract:
         platform = self.task.get("observe_platform_velocity")
         if platform is None:
             platform = self.obs_per_drone - 3 * command > OBS_PER_DRONE
-        return {"observe_platform_velocity": bool(platform), "observe_previous_command": command}
+        options = {"observe_platform_velocity": bool(platform), "observe_previous_command": command}
+        return {name: options[name] for name in OBSERVATION_OPTIONS}
 
     def check_observation(self) -> None:
         """Raise :class:`PolicyFileError` unless ``obs_per_drone`` is what :meth:`observation_options` ask for."""
@@ -199,10 +207,15 @@ class PolicyContract:
             problems.append(f"it takes {self.num_drones} drone(s), the task has {expected_drones}")
         if not np.isclose(self.max_speed, task.max_speed):
             problems.append(f"its max_speed is {self.max_speed} m/s, the task's is {task.max_speed} m/s")
-        if self.obs_per_drone != task.obs_per_drone:
+        # Compared by name, not only by count: 16 numbers may be the platform velocity or the previous command.
+        wanted, given = self.observation_options(), {name: getattr(task, name) for name in OBSERVATION_OPTIONS}
+        if wanted != given:
+            differ = ", ".join(
+                f"{name} (policy {wanted[name]}, task {given[name]})" for name in wanted if wanted[name] != given[name]
+            )
             problems.append(
-                f"it takes {self.obs_per_drone} numbers per drone, the task gives {task.obs_per_drone} "
-                "(TaskConfig.observe_platform_velocity or observe_previous_command differs)"
+                f"it takes {self.obs_per_drone} numbers per drone, the task gives {task.obs_per_drone}: "
+                f"TaskConfig.{differ} differs"
             )
         if not np.isclose(self.policy_hz, task.policy_hz):
             problems.append(f"it acts at {self.policy_hz} Hz, the task at {task.policy_hz} Hz")

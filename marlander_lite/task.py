@@ -159,7 +159,8 @@ class TaskConfig:
     """Beyond the paper: append the drone's previous velocity command (3 numbers, m/s, zero after a reset) to its
     observation, after the platform velocity when both are on. With it a memoryless policy sees what it asked for
     next to how the drone moved, which tells a sluggish tracker from a brisk one (the last action in the input, as
-    in Hwangbo et al. 2019 and Kaufmann et al. 2023). It is known exactly: sensing noise and latency never touch it."""
+    in [Hwangbo2019] and [Kaufmann2023], docs/references.md). It is known exactly: sensing noise and latency never
+    touch it."""
 
     def __post_init__(self) -> None:
         checks: list[tuple[bool, str]] = [

@@ -296,8 +296,13 @@ def test_the_task_says_what_the_observation_holds_beyond_eq2(tmp_path):
     task = TaskConfig(num_drones=1, **both.observation_options())
     assert task.obs_per_drone == 19
     both.check_compatible(task)
-    with pytest.raises(PolicyFileError, match="observe_platform_velocity or observe_previous_command differs"):
+    with pytest.raises(PolicyFileError, match=r"observe_previous_command \(policy True, task False\) differs"):
         both.check_compatible(TaskConfig(num_drones=1, observe_platform_velocity=True))
+    # the same count, other numbers: a policy reading its previous command is not fed the platform velocity
+    with pytest.raises(PolicyFileError, match=r"observe_platform_velocity \(policy False, task True\)"):
+        contract(16, observe_previous_command=True).check_compatible(
+            TaskConfig(num_drones=1, observe_platform_velocity=True)
+        )
     tensors = {"actor.0.weight": np.zeros((3, 16)), "actor.0.bias": np.zeros(3)}
     fields = asdict(contract(16, observe_platform_velocity=True, observe_previous_command=True))
     path = write_raw(tmp_path / "bad.safetensors", fields, tensors)

@@ -39,8 +39,6 @@ SensingName = Literal["perfect", "vicon", "noisy", "robust"]
 OptionsT = TypeVar("OptionsT", bound="EnvOptions")
 ConfigT = TypeVar("ConfigT")
 
-# Bounds of one drone's observation; the optional platform velocity has the velocity bound.
-
 
 def _is_count(value: object) -> bool:
     return not isinstance(value, bool) and isinstance(value, int | np.integer) and value >= 1
@@ -184,7 +182,8 @@ class EnvOptions:
 
 
 def drone_observation_space(task: TaskConfig) -> spaces.Box:
-    """One drone's eq. 2 observation: ``(13,)`` float32 (``(16,)`` with ``observe_platform_velocity``)."""
+    """One drone's eq. 2 observation: ``(13,)`` float32 (``(16,)`` or ``(19,)`` with the platform velocity and the
+    previous command, ``TaskConfig.observe_platform_velocity`` / ``observe_previous_command``)."""
     high = observation_limits(task.obs_per_drone).astype(np.float32)
     return spaces.Box(-high, high, dtype=np.float32)
 
@@ -195,7 +194,7 @@ def drone_action_space() -> spaces.Box:
 
 
 def centralised_observation_space(task: TaskConfig) -> spaces.Box:
-    """The paper's flattened input: ``(13 N,)`` float32 (``(16 N,)`` with ``observe_platform_velocity``)."""
+    """The paper's flattened input: ``(13 N,)`` float32 (``(16 N,)`` or ``(19 N,)`` with the extras)."""
     high = np.tile(observation_limits(task.obs_per_drone).astype(np.float32), task.num_drones)
     return spaces.Box(-high, high, dtype=np.float32)
 
