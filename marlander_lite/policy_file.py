@@ -165,8 +165,7 @@ class PolicyContract:
         platform = self.task.get("observe_platform_velocity")
         if platform is None:
             platform = self.obs_per_drone - 3 * command > OBS_PER_DRONE
-        options = {"observe_platform_velocity": bool(platform), "observe_previous_command": command}
-        return {name: options[name] for name in OBSERVATION_OPTIONS}
+        return {"observe_platform_velocity": bool(platform), "observe_previous_command": command}
 
     def check_observation(self) -> None:
         """Raise :class:`PolicyFileError` unless ``obs_per_drone`` is what :meth:`observation_options` ask for."""

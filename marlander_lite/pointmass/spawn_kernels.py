@@ -35,7 +35,7 @@ def spawn_rounds(
     separation: float,
     rounds: int,
     near_draws: np.ndarray,
-    near_low: float = 0.15,
+    near_low: float,
 ) -> tuple[np.ndarray, int, int]:
     """Up to ``rounds`` rounds of the reference's ``draw(ids)`` and separation check, in one call.
 
