@@ -113,10 +113,21 @@ def test_the_examples_fly_the_filter_with_its_own_defaults_and_show_them(tmp_pat
 
 
 def test_the_keys_override_the_filter_s_settings(example):
-    example["safety_filter"] = {"min_distance": 0.22, "touchdown_speed": 0.0, "cone_slope": 2.0, "reaction_time": 0.3}
+    example["safety_filter"] = {
+        "min_distance": 0.22,
+        "touchdown_speed": 0.0,
+        "cone_slope": 2.0,
+        "reaction_time": 0.3,
+        "cone_radius": 0.04,
+    }
     config = LabConfig.from_dict(example).safety_filter.filter_config()
     expected = dataclasses.replace(
-        SafetyFilterConfig(), min_distance=0.22, touchdown_speed=0.0, cone_slope=2.0, reaction_time=0.3
+        SafetyFilterConfig(),
+        min_distance=0.22,
+        touchdown_speed=0.0,
+        cone_slope=2.0,
+        reaction_time=0.3,
+        cone_radius=0.04,
     )
     assert config == expected
 
@@ -130,6 +141,7 @@ def test_the_keys_override_the_filter_s_settings(example):
         ),
         ({"min_distance": -0.1}, r"^safety_filter.min_distance: Input should be greater than 0 \(got -0.1\)"),
         ({"cone_slope": -1.0}, r"^safety_filter.cone_slope: Input should be greater than or equal to 0 \(got -1.0\)"),
+        ({"cone_radius": 0.5}, r"^safety_filter.cone_radius: Input should be less than or equal to 0.1 \(got 0.5\)"),
         ({"enabled": "yes"}, r"^safety_filter.enabled: Input should be a valid boolean \(got 'yes'\)"),
         ({"gain": float("nan")}, r"^safety_filter.gain: Input should be a finite number"),
         (  # in range for the key, refused by the filter itself (its activation distance is 1 m)

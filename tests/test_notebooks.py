@@ -338,6 +338,11 @@ def check_08(shown: Shown) -> None:
             assert close(first_number(cell), 100 * float(r["success_rate"]), 0.051), (name, cell)
             error = float(cell.rsplit("/", 1)[1].split()[0])
             assert close(error, float(r["landing_error_cm"]), 0.0051), (name, cell)
+    # Section 4c: the worst line cell flown with and without the safety filter; the causes shown are failed episodes.
+    for label in ("policy alone", "through the filter"):
+        pattern = rf"^ *{label}: (\S+) % of (\d+) at \S+ cm; failed: (\d+) collision, (\d+) off the pad, (\d+) timeout"
+        [(rate, episodes, collisions, off_pad, timeouts)] = shown.numbers(pattern)
+        assert episodes >= 2 and collisions + off_pad + timeouts <= round(episodes * (1 - rate / 100))
     live = markdown_rows("\n".join(shown.text.rstrip().splitlines()[-3:]))
     assert len(live) == 1 and live[0][""] == "UR10"
     for column in ("point mass", "PyBullet firmware", "PyBullet PID"):

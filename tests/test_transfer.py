@@ -234,6 +234,42 @@ def test_failure_causes_of_a_dive_a_slow_descent_and_a_hover() -> None:
     assert hover.truncated[0] and transfer.failure_cause(hover, cfg) == "timeouts"
 
 
+class _Diver:
+    """A stand-in policy that commands every drone straight down at 2 m/s, whatever it sees."""
+
+    def __init__(self, path: str) -> None:
+        self.contract = load_policy(path).contract
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        speed = self.contract.task["max_speed"]
+        return np.tile([0.0, 0.0, -2.0 / speed], (len(obs), self.contract.num_drones))
+
+
+def test_the_safety_filter_column_turns_a_dive_into_a_hover_over_the_approach_cone(monkeypatch) -> None:
+    """Flown as it is, a 2 m/s dive from the random start touches down too fast. Through the deployment's safety
+    filter (``--safety-filter``) the descent guard brakes it and the approach guard holds every drone at the cone
+    over its pad (none starts over its pad centre): no contact, the episode times out."""
+    monkeypatch.setattr(transfer, "load_policy", _Diver)
+    bare = transfer.fly_cell(POLICY, "point mass", "floor", 1, 0, "perfect")
+    assert bare.crashes_too_fast == 1
+    filtered = transfer.fly_cell(POLICY, "point mass", "floor", 1, 0, "perfect", {})
+    assert filtered.timeouts == 1 and filtered.crashes_too_fast == filtered.crashes_off_pad == 0
+    assert filtered.touchdown_speed != filtered.touchdown_speed  # NaN: nothing touched down
+
+
+def test_transfer_command_records_the_safety_filter_settings(tmp_path, capsys) -> None:
+    out = tmp_path / "t"
+    args = ["transfer", POLICY, "--episodes", "1", "--rows", "floor", "--columns", "point mass", "--workers", "1"]
+    assert main([*args, "--safety-filter", "cone_radius=0.04", "--out", str(out)]) == 0
+    data = json.loads((out / "transfer.json").read_text())
+    assert data["config"]["safety_filter"] == {"cone_radius": 0.04}
+    assert "through the safety filter (cone_radius 0.04)" in (out / "transfer.md").read_text()
+    assert main([*args, "--safety-filter", "--out", str(tmp_path / "defaults")]) == 0
+    assert json.loads((tmp_path / "defaults" / "transfer.json").read_text())["config"]["safety_filter"] == {}
+    assert main([*args, "--out", str(tmp_path / "bare")]) == 0
+    assert json.loads((tmp_path / "bare" / "transfer.json").read_text())["config"]["safety_filter"] is None
+
+
 def test_a_matrix_written_before_failures_were_counted_still_reads(tmp_path) -> None:
     old = json.loads(open("data/results/transfer/quick-cpu/transfer.json").read())
     for cell in old["cells"]:
@@ -251,6 +287,9 @@ def test_a_matrix_written_before_failures_were_counted_still_reads(tmp_path) -> 
         (["--columns", "PyBullet warp"], "unknown column"),
         (["--rows", "ceiling"], "unknown row"),
         (["--episodes", "0"], "--episodes"),
+        (["--safety-filter", "cone_radiu=0.04"], "Unknown safety filter option(s) ['cone_radiu']"),
+        (["--safety-filter", "cone_radius=wide"], "is not KEY=NUMBER"),
+        (["--safety-filter", "gain=-1"], "must be a finite number >= 0"),
     ],
 )
 def test_transfer_command_rejects_bad_input(extra: list[str], message: str, tmp_path, capsys) -> None:

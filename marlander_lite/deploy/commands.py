@@ -116,7 +116,8 @@ def safety_filter_line(lab: LabConfig) -> str:
         return "Safety filter: OFF (safety_filter.enabled: false): nothing keeps the drones apart in flight."
     return (
         f"Safety filter: on (drones kept {sf.min_distance:g} m apart, descent braked to {sf.touchdown_speed:g} m/s, "
-        f"approach cone slope {sf.cone_slope:g}, centring {sf.centring_gain:g}/s; "
+        f"approach cone slope {sf.cone_slope:g} "
+        f"and radius {sf.cone_radius:g} m, centring {sf.centring_gain:g}/s; "
         "docs/lab_guide.md, 'The safety filter')."
     )
 

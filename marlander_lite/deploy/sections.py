@@ -281,6 +281,9 @@ class SafetyFilterSection:
     cone_slope: Annotated[Real, Field(ge=0, le=10)] = _FILTER_DEFAULTS.cone_slope
     """Approach guard: no descent below ``cone_slope`` m of height per m of horizontal distance from the pad (up to
     0.3 m); 0: no guard."""
+    cone_radius: Annotated[Real, Field(ge=0, le=0.1)] = _FILTER_DEFAULTS.cone_radius
+    """Approach guard: within this horizontal distance of its pad centre (m) a drone may descend all the way. On a
+    moving pad the drone trails its pad by a few centimetres; 0.04 lifted moving-pad landings (docs/transfer.md)."""
     centring_gain: Annotated[Real, Field(ge=0, le=10)] = _FILTER_DEFAULTS.centring_gain
     """Centring (1/s): over its pad and below 0.3 m, a drone's horizontal command gains this times its offset from
     the pad centre, so that a policy hovering off-centre still lands on the centre; 0: no centring."""

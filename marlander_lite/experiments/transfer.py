@@ -31,6 +31,7 @@ import hashlib
 import json
 import multiprocessing
 import time
+from collections.abc import Callable
 from concurrent import futures
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -46,6 +47,7 @@ from marlander_lite.experiments.protocol import trial_seed
 from marlander_lite.policy_file import MLPPolicy, load_policy
 from marlander_lite.rotations import tilt_deg
 from marlander_lite.simulators import simulator_entry
+from marlander_lite.swarm.safety_filter import SafetyFilterConfig, with_safety_filter
 
 NEAR_PAD = 0.5
 """Distance to the goal (m) within which commanded speeds are measured, and horizontal distance at which the
@@ -163,13 +165,24 @@ def build_episodes(policy: MLPPolicy, column: Column, row: Row, sensing: str) ->
     return LandingEpisodes(simulator, sensing_config)
 
 
-def fly_cell(policy_path: str, column_name: str, row_name: str, episodes: int, seed: int, sensing: str) -> CellResult:
-    """Fly ``episodes`` episodes of one cell (runs in a worker process)."""
+def fly_cell(
+    policy_path: str,
+    column_name: str,
+    row_name: str,
+    episodes: int,
+    seed: int,
+    sensing: str,
+    safety_filter: dict[str, float] | None = None,
+) -> CellResult:
+    """Fly ``episodes`` episodes of one cell (runs in a worker process). ``safety_filter``: None, or the settings
+    (changes to :class:`SafetyFilterConfig`'s defaults, ``{}`` for none) of the deployment's safety filter
+    (:mod:`marlander_lite.swarm.safety_filter`), which then changes every command before it is flown."""
     started = time.perf_counter()
     policy = load_policy(policy_path)
     column, row = _find_column(column_name), _find_row(row_name)
     world = build_episodes(policy, column, row, sensing)
     cfg = world.task
+    act = cell_actor(policy, world, safety_filter)
     successes, collisions = 0, 0
     errors: list[float] = []
     times: list[float] = []
@@ -185,7 +198,7 @@ def fly_cell(policy_path: str, column_name: str, row_name: str, episodes: int, s
             touched = np.zeros(cfg.num_drones, dtype=bool)
             approached = np.zeros(cfg.num_drones, dtype=bool)
             while True:
-                action = policy.act(policy_input(obs))
+                action = act(obs)
                 command = task.action_to_velocity(action, cfg.num_drones, cfg.max_speed)[0]
                 outcome = world.step(action)
                 s = world.sim.state()
@@ -242,6 +255,22 @@ def fly_cell(policy_path: str, column_name: str, row_name: str, episodes: int, s
     )
 
 
+def cell_actor(
+    policy: MLPPolicy, world: LandingEpisodes, safety_filter: dict[str, float] | None
+) -> Callable[[np.ndarray], np.ndarray]:
+    """Observations ``(1, N, obs_per_drone)`` -> the actions flown ``(1, 3 N)``: the policy's, through the safety
+    filter with ``safety_filter``'s settings unless it is None."""
+
+    def act(obs: np.ndarray) -> np.ndarray:
+        return policy.act(policy_input(obs))
+
+    if safety_filter is None:
+        return act
+    n = world.task.num_drones
+    offsets = world.sim.platform.geometry.pad_offsets(n)
+    return with_safety_filter(act, n, offsets, world.task.max_speed, SafetyFilterConfig.from_dict(safety_filter))
+
+
 FAILURES = ("collisions", "crashes_too_fast", "crashes_off_pad", "out_of_arena", "timeouts")
 """The :class:`CellResult` fields that count failed episodes by cause."""
 
@@ -271,6 +300,10 @@ class TransferConfig:
     """``vicon`` (the lab's noise and latency) or ``perfect``."""
     workers: int = 2
     """Worker processes; 1 flies every cell in this process."""
+    safety_filter: dict[str, float] | None = None
+    """None: the policy's commands are flown as they are. A dict: every command goes through the safety filter that
+    ``marlander deploy`` puts after the policy (on by default there), with these changes to
+    :class:`SafetyFilterConfig`'s defaults (``{}``: none)."""
 
     def __post_init__(self) -> None:
         if isinstance(self.episodes, bool) or not isinstance(self.episodes, int) or self.episodes < 1:
@@ -287,13 +320,17 @@ class TransferConfig:
             _find_column(name)
         for name in self.rows:
             _find_row(name)
+        if self.safety_filter is not None:
+            SafetyFilterConfig.from_dict(self.safety_filter)  # unknown or invalid settings fail before any flight
 
 
 def transfer_matrix(config: TransferConfig) -> list[CellResult]:
     """Fly every cell of ``config`` and return the results, rows outer, columns inner, in the given order."""
     load_policy(config.policy).contract.require_centralised("marlander transfer")  # fails before any worker starts
     cells = [(c, r) for r in config.rows for c in config.columns]
-    args = [(str(config.policy), c, r, config.episodes, config.seed, config.sensing) for c, r in cells]
+    args = [
+        (str(config.policy), c, r, config.episodes, config.seed, config.sensing, config.safety_filter) for c, r in cells
+    ]
     if config.workers == 1:
         return [fly_cell(*a) for a in args]
     method = "fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn"
@@ -352,13 +389,17 @@ def write_results(config: TransferConfig, results: list[CellResult], out: Path, 
     json_path.write_text(json.dumps({**meta, "cells": [asdict(r) for r in results]}, indent=2) + "\n")
     md_path.write_text(
         f"Transfer matrix of `{config.policy}` ({config.episodes} episodes a cell, seed {config.seed}, "
-        f"sensing {config.sensing}): success % [95 % Wilson] / mean landing error.\n\n"
-        + format_table(results)
-        + "\n\n"
-        + format_flight_table(results)
-        + "\n"
+        f"sensing {config.sensing}{_filter_words(config.safety_filter)}): success % [95 % Wilson] / mean landing "
+        "error.\n\n" + format_table(results) + "\n\n" + format_flight_table(results) + "\n"
     )
     return [csv_path, json_path, md_path]
+
+
+def _filter_words(settings: dict[str, float] | None) -> str:
+    if settings is None:
+        return ""
+    changes = ", ".join(f"{k} {v:g}" for k, v in settings.items())
+    return f", through the safety filter ({changes or 'default settings'})"
 
 
 def _csv_value(value: Any) -> str:

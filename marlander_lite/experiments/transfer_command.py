@@ -27,6 +27,7 @@ from marlander_lite.experiments.transfer import (
     transfer_matrix,
     write_results,
 )
+from marlander_lite.swarm.safety_filter import SafetyFilterConfig
 
 OUTPUT_NAMES = ("transfer.csv", "transfer.json", "transfer.md")
 
@@ -55,9 +56,34 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--sensing", choices=("vicon", "perfect"), default="vicon", help="observation model (default vicon)")
     p.add_argument("--workers", type=int, default=2, help="worker processes (default 2)")
+    p.add_argument(
+        "--safety-filter",
+        nargs="?",
+        const={},
+        type=_filter_settings,
+        metavar="KEY=VALUE,...",
+        help="fly every command through the safety filter `marlander deploy` puts after the policy, with its "
+        "defaults or these changes to them (e.g. cone_radius=0.04)",
+    )
     p.add_argument("--out", type=Path, help="results folder (default runs/transfer-<policy name>)")
     p.add_argument("--force", action="store_true", help="overwrite transfer.* files already in --out")
     p.set_defaults(func=run)
+
+
+def _filter_settings(text: str) -> dict[str, float]:
+    """``"cone_radius=0.04,iterations=8"`` -> ``{"cone_radius": 0.04, "iterations": 8}``, checked by the filter."""
+    settings: dict[str, float] = {}
+    for item in filter(None, (part.strip() for part in text.split(","))):
+        key, _, value = item.partition("=")
+        try:
+            settings[key.strip()] = int(value) if value.strip().isdigit() else float(value)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{item!r} is not KEY=NUMBER (e.g. cone_radius=0.04)") from None
+    try:
+        SafetyFilterConfig.from_dict(settings)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+    return settings
 
 
 def run(args: argparse.Namespace) -> int:
@@ -71,6 +97,7 @@ def run(args: argparse.Namespace) -> int:
         rows=args.rows,
         sensing=args.sensing,
         workers=args.workers,
+        safety_filter=args.safety_filter,
     )
     out = args.out or Path("runs") / f"transfer-{args.policy.stem}"
     existing = [out / name for name in OUTPUT_NAMES if (out / name).exists()]
