@@ -22,7 +22,10 @@ split by touchdown speed): ``collisions``, ``crashes_too_fast`` (a contact faste
 0.5 m/s relative to the pad), ``crashes_off_pad`` (a slow contact with anything but the drone's own pad, or off its
 centre), ``out_of_arena`` and ``timeouts``.
 
-``marlander transfer POLICY`` prints the table and writes ``transfer.csv`` and ``transfer.json``.
+``marlander transfer POLICY`` prints the table and writes ``transfer.csv`` and ``transfer.json``. With
+``--safety-filter`` (:attr:`TransferConfig.safety_filter`) every command goes through the safety filter that
+``marlander deploy`` puts after the policy (:mod:`marlander_lite.swarm.safety_filter`): the matrix of the flight a lab
+flies, and the commands measured are the filtered ones.
 """
 
 from __future__ import annotations
