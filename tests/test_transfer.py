@@ -254,7 +254,7 @@ def test_the_safety_filter_column_turns_a_dive_into_a_hover_over_the_approach_co
     assert bare.crashes_too_fast == 1
     filtered = transfer.fly_cell(POLICY, "point mass", "floor", 1, 0, "perfect", {})
     assert filtered.timeouts == 1 and filtered.crashes_too_fast == filtered.crashes_off_pad == 0
-    assert filtered.touchdown_speed != filtered.touchdown_speed  # NaN: nothing touched down
+    assert np.isnan(filtered.touchdown_speed)  # nothing touched down
 
 
 def test_transfer_command_records_the_safety_filter_settings(tmp_path, capsys) -> None:
