@@ -7,15 +7,19 @@ import math
 import numpy as np
 import pytest
 
+from marlander_lite.platforms import PlatformConfig
 from marlander_lite.swarm.evaluation import evaluate_cell
 from marlander_lite.swarm.safety_filter import (
     SafetyFilterConfig,
     filter_commands,
+    parse_settings,
     settled_drones,
     with_safety_filter,
 )
 
 SHARED = "data/policies/shared-quick-local.safetensors"
+MOVING = "data/policies/moving-smooth-16m.safetensors"
+MOVING_PAD_SETTINGS = {"cone_radius": 0.04, "reaction_time": 0.35}
 ONLY_SEPARATION = SafetyFilterConfig(sidestep=0.0, wake_slope=0.0)
 
 
@@ -211,3 +215,41 @@ def test_shared_policy_with_filter_lands_eight_drones() -> None:
     row = evaluate_cell("shared-filter", 8, 40, seed=0, policy_path=SHARED, num_envs=40)
     assert row.summary.success_rate >= 0.85
     assert row.collisions <= 1
+
+
+def test_settings_are_read_as_a_command_line_gives_them() -> None:
+    assert parse_settings("cone_radius=0.04, iterations=8") == {"cone_radius": 0.04, "iterations": 8}
+    assert parse_settings("") == {}
+    with pytest.raises(ValueError, match="is not KEY=NUMBER"):
+        parse_settings("cone_radius=wide")
+    with pytest.raises(ValueError, match="allowed: "):
+        parse_settings("cone_radios=0.04")
+    with pytest.raises(ValueError, match="finite number >= 0"):
+        parse_settings("cone_radius=-1")
+
+
+def test_centralised_policy_through_the_filter_follows_a_fast_pad() -> None:
+    # measured on 200 trials, seed 0, UR10 arc at 1.0 m/s: 93.0 % through the filter, 27.0 % alone
+    fast_arc = PlatformConfig(kind="moving-arc", speed=1.0)
+    alone = evaluate_cell("centralised", 2, 40, seed=0, policy_path=MOVING, num_envs=40, platform=fast_arc)
+    guarded = evaluate_cell(
+        "centralised-filter", 2, 40, seed=0, policy_path=MOVING, num_envs=40, platform=fast_arc,
+        filter_settings=MOVING_PAD_SETTINGS,
+    )  # fmt: skip
+    assert alone.summary.success_rate <= 0.5
+    assert guarded.summary.success_rate >= 0.8
+    assert guarded.controller == "centralised-filter"
+
+
+def test_swarm_evaluate_records_the_filter_settings_and_refuses_bad_ones(tmp_path, capsys) -> None:
+    from marlander_lite.cli import main
+
+    args = ["swarm", "evaluate", "--centralised", MOVING, "--centralised-filter", "--sizes", "2", "--trials", "2"]
+    assert main([*args, "--filter-settings", "cone_radius=0.04", "--out", str(tmp_path)]) == 0
+    table = (tmp_path / "scaling.md").read_text()
+    assert "| centralised-filter | static-floor | 2 | 2 |" in table
+    assert "--filter-settings cone_radius=0.04" in table  # the note's command flies the same filter again
+    with pytest.raises(SystemExit):
+        main([*args, "--filter-settings", "cone_radius=wide", "--out", str(tmp_path / "bad")])
+    assert "is not KEY=NUMBER" in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()

@@ -361,7 +361,9 @@ def test_evaluation_vs_n_counts_trials_and_intervals(lander_file):
     assert np.isinf(rows[0].summary.min_separation_m)  # one drone has no neighbour
     assert rows[0].summary.success_rate >= 5 / 6  # the P controller lands a lone drone from random starts
     assert "| shared | static-floor | 3 | 6 |" in markdown_table(rows)
-    with pytest.raises(ValueError, match="allowed: shared, shared-apf, shared-filter, centralised, baseline"):
+    with pytest.raises(
+        ValueError, match="allowed: shared, shared-apf, shared-filter, centralised, centralised-filter, baseline"
+    ):
         evaluate_cell("teleport", 2, trials=2)
     with pytest.raises(PolicyFileError, match="it takes 2 drone"):
         evaluate_cell("centralised", 3, trials=2, policy_path=ROOT / "data/policies/quick-cpu.safetensors")

@@ -28,7 +28,7 @@ from marlander_lite.experiments.transfer import (
     transfer_matrix,
     write_results,
 )
-from marlander_lite.swarm.safety_filter import SafetyFilterConfig
+from marlander_lite.swarm.safety_filter import parse_settings
 
 OUTPUT_NAMES = ("transfer.csv", "transfer.json", "transfer.md")
 
@@ -72,19 +72,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _filter_settings(text: str) -> dict[str, float]:
-    """``"cone_radius=0.04,iterations=8"`` -> ``{"cone_radius": 0.04, "iterations": 8}``, checked by the filter."""
-    settings: dict[str, float] = {}
-    for item in filter(None, (part.strip() for part in text.split(","))):
-        key, _, value = item.partition("=")
-        try:
-            settings[key.strip()] = int(value) if value.strip().isdigit() else float(value)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{item!r} is not KEY=NUMBER (e.g. cone_radius=0.04)") from None
+    """``--safety-filter``'s value, as :func:`~marlander_lite.swarm.safety_filter.parse_settings` reads it."""
     try:
-        SafetyFilterConfig.from_dict(settings)
+        return parse_settings(text)
     except ValueError as error:
         raise argparse.ArgumentTypeError(str(error)) from None
-    return settings
 
 
 def run(args: argparse.Namespace) -> int:

@@ -12,6 +12,7 @@ rates and cluster-bootstrap intervals for the landing error
 ``shared-apf``   the shared policy plus the APF repulsion of the baseline (as MorphoLander adds it to a
                  single-agent policy, Sec. IV-E), any N;
 ``shared-filter`` the shared policy through the safety filter (:mod:`marlander_lite.swarm.safety_filter`), any N;
+``centralised-filter`` the centralised policy through the safety filter, as ``marlander deploy`` flies it;
 ``baseline``     PID + APF (:class:`~marlander_lite.experiments.controllers.PIDAPFController`, tuned gains), any N.
 
 Command line (writes ``scaling.csv``, ``scaling.json`` and ``scaling.md`` into ``--out``)::
@@ -44,10 +45,10 @@ from marlander_lite.pointmass.simulator import PointMassSwarm
 from marlander_lite.policy_file import load_policy, read_contract
 from marlander_lite.sensing import SensingConfig
 from marlander_lite.swarm.policy import SharedPolicy
-from marlander_lite.swarm.safety_filter import BatchAct, with_safety_filter
+from marlander_lite.swarm.safety_filter import BatchAct, SafetyFilterConfig, parse_settings, with_safety_filter
 from marlander_lite.task import TaskConfig
 
-SCALING_CONTROLLERS = ("shared", "shared-apf", "shared-filter", "centralised", "baseline")
+SCALING_CONTROLLERS = ("shared", "shared-apf", "shared-filter", "centralised", "centralised-filter", "baseline")
 
 
 @dataclass(frozen=True)
@@ -171,9 +172,19 @@ def make_episodes(
 
 
 def actor_factory(
-    controller: str, task: TaskConfig, platform: PlatformConfig, num_envs: int, policy_path: str | Path | None = None
+    controller: str,
+    task: TaskConfig,
+    platform: PlatformConfig,
+    num_envs: int,
+    policy_path: str | Path | None = None,
+    filter_settings: dict[str, float] | None = None,
 ) -> Callable[[np.ndarray | None], BatchAct]:
-    """A :func:`fly_trials` actor builder for ``controller`` (one of :data:`SCALING_CONTROLLERS`) on ``task``."""
+    """A :func:`fly_trials` actor builder for ``controller`` (one of :data:`SCALING_CONTROLLERS`) on ``task``.
+
+    ``filter_settings``: changes to :class:`SafetyFilterConfig`'s defaults for the ``*-filter`` controllers.
+    """
+    guard = SafetyFilterConfig.from_dict(filter_settings or {})
+    offsets = platform.geometry.pad_offsets(task.num_drones)
     if controller == "shared":
         if policy_path is None:
             raise ValueError("The shared controller needs its policy file (policy_path).")
@@ -188,12 +199,13 @@ def actor_factory(
         if policy_path is None:
             raise ValueError("The shared-filter controller needs its policy file (policy_path).")
         guarded = SharedPolicy(policy_path, task, platform.geometry)
-        offsets = platform.geometry.pad_offsets(task.num_drones)
-        return lambda _ids: with_safety_filter(guarded.act, task.num_drones, offsets, task.max_speed)
-    if controller == "centralised":
+        return lambda _ids: with_safety_filter(guarded.act, task.num_drones, offsets, task.max_speed, guard)
+    if controller in ("centralised", "centralised-filter"):
         if policy_path is None:
-            raise ValueError("The centralised controller needs its policy file (policy_path).")
+            raise ValueError(f"The {controller} controller needs its policy file (policy_path).")
         central = load_policy(policy_path, task)  # refuses a policy trained for another N
+        if controller == "centralised-filter":
+            return lambda _ids: with_safety_filter(central.act, task.num_drones, offsets, task.max_speed, guard)
         return lambda _ids: central.act
     if controller == "baseline":
         return lambda _ids: BatchOfControllers(lambda: PIDAPFController(task, geometry=platform.geometry), num_envs)
@@ -225,9 +237,11 @@ def evaluate_cell(
     platform: PlatformConfig | None = None,
     task_changes: dict[str, Any] | None = None,
     simulator_options: dict[str, Any] | None = None,
+    filter_settings: dict[str, float] | None = None,
 ) -> ScalingRow:
     """Fly ``trials`` trials of ``controller`` on swarms of ``num_drones`` and summarise them (``task_changes``:
-    see :func:`evaluation_task`; ``simulator_options`` go to the swarm, e.g. ``{"controller": "firmware"}``)."""
+    see :func:`evaluation_task`; ``simulator_options`` go to the swarm, e.g. ``{"controller": "firmware"}``;
+    ``filter_settings``: see :func:`actor_factory`)."""
     if isinstance(trials, bool) or not isinstance(trials, int) or trials < 1:
         raise ValueError(f"trials must be an integer >= 1, got {trials!r}.")
     started = time.perf_counter()
@@ -240,7 +254,7 @@ def evaluate_cell(
         num_drones, num_envs, seed, simulator, platform, task_changes=task_changes, **(simulator_options or {})
     )
     try:
-        make_actor = actor_factory(controller, episodes.task, platform, num_envs, policy_path)
+        make_actor = actor_factory(controller, episodes.task, platform, num_envs, policy_path, filter_settings)
         results = fly_trials(episodes, make_actor, trials)
     finally:
         episodes.sim.close()
@@ -331,6 +345,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--baseline", action="store_true", help="also fly PID + APF at every N")
     parser.add_argument("--shared-apf", action="store_true", help="also fly the shared policy + APF repulsion")
     parser.add_argument("--shared-filter", action="store_true", help="also fly the shared policy + safety filter")
+    parser.add_argument(
+        "--centralised-filter", action="store_true", help="also fly the centralised policy + safety filter"
+    )
+    parser.add_argument(
+        "--filter-settings",
+        type=_checked_settings,
+        metavar="KEY=VALUE,...",
+        help="changes to the safety filter's defaults for the *-filter controllers (e.g. cone_radius=0.04)",
+    )
     parser.add_argument("--sizes", type=int, nargs="+", default=[2, 4, 8, 16])
     parser.add_argument("--trials", type=int, default=200)
     parser.add_argument("--seed", type=int, default=0)
@@ -343,6 +366,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--speeds", type=float, nargs="+", default=[None], help="tool speeds of a moving platform")
     parser.add_argument("--inclinations", type=float, nargs="+", default=[0.0], help="plate tilts (degrees)")
     parser.add_argument("--force", action="store_true", help="overwrite STEM.csv/.json/.md already in --out")
+
+
+def _checked_settings(text: str) -> str:
+    """``--filter-settings`` as given (so that the tables' command repeats it), once the filter has accepted it."""
+    try:
+        parse_settings(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+    return text
 
 
 def command_line(args: argparse.Namespace, program: str = "marlander swarm evaluate") -> str:
@@ -366,6 +398,7 @@ def run(args: argparse.Namespace, program: str = "marlander swarm evaluate") -> 
         raise ValueError("Nothing to fly: give --shared FILE, --centralised FILE and/or --baseline.")
     check_results_free(args.out, args.stem, args.force)
     options = {"controller": "firmware"} if args.firmware else {}
+    settings = parse_settings(args.filter_settings or "")
     platforms = [
         PlatformConfig(kind=args.platform, speed=speed, geometry=PlateGeometry(inclination_deg=tilt))
         for speed in args.speeds
@@ -382,13 +415,15 @@ def run(args: argparse.Namespace, program: str = "marlander swarm evaluate") -> 
                 cells.append(("shared-filter", n, args.shared, platform))
             if args.centralised and load_policy(args.centralised).contract.num_drones == n:
                 cells.append(("centralised", n, args.centralised, platform))
+                if args.centralised_filter:
+                    cells.append(("centralised-filter", n, args.centralised, platform))
             if args.baseline:
                 cells.append(("baseline", n, None, platform))
     rows = []
     for controller, n, path, platform in cells:
         row = evaluate_cell(
             controller, n, args.trials, args.seed, path, args.num_envs, args.simulator, platform,
-            simulator_options=options,
+            simulator_options=options, filter_settings=settings,
         )  # fmt: skip
         print(_cell_text(row), f"({row.seconds:.0f} s)", flush=True)
         rows.append(row)

@@ -170,6 +170,21 @@ class SafetyFilterConfig:
         return cls(**values)
 
 
+def parse_settings(text: str) -> dict[str, float]:
+    """Changes to the filter's defaults as a command line gives them: ``"cone_radius=0.04,iterations=8"`` ->
+    ``{"cone_radius": 0.04, "iterations": 8}`` (``""``: none). Raises ``ValueError`` for an item that is not
+    ``KEY=NUMBER`` and for whatever :class:`SafetyFilterConfig` refuses (unknown keys, values out of range)."""
+    settings: dict[str, float] = {}
+    for item in filter(None, (part.strip() for part in text.split(","))):
+        key, _, value = item.partition("=")
+        try:
+            settings[key.strip()] = int(value) if value.strip().isdigit() else float(value)
+        except ValueError:
+            raise ValueError(f"{item!r} is not KEY=NUMBER (e.g. cone_radius=0.04)") from None
+    SafetyFilterConfig.from_dict(settings)
+    return settings
+
+
 def settled_drones(rel_goal: np.ndarray, vel: np.ndarray, config: SafetyFilterConfig) -> np.ndarray:
     """Drones resting on their pads, ``(..., N)`` bool, from eq. 2's ``p`` (position minus goal, m) and ``v``
     (velocity relative to the pad, m/s), both ``(..., N, 3)``."""
