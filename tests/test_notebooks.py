@@ -412,6 +412,9 @@ def test_notebook_is_committed_without_outputs(name):
     nb = nbformat.read(NOTEBOOKS / name, as_version=4)
     code = [c for c in nb.cells if c.cell_type == "code"]
     assert code and all(not c.outputs and c.execution_count is None for c in code)
+    # nbformat 4.5 cells carry ids (a missing one is a warning now, an error in future nbformat versions).
+    raw = json.loads((NOTEBOOKS / name).read_text())
+    assert all("id" in cell for cell in raw["cells"]), f"{name}: a cell without an id"
 
 
 @pytest.mark.slow
