@@ -309,3 +309,20 @@ def test_action_change_penalty_worked_by_hand_and_needs_the_previous_commands() 
     assert got[0, 0] == pytest.approx(0.1 * 0.5)
     with pytest.raises(ValueError, match="previous commands"):
         training_aids.training_aid_penalty(command, zeros, zeros, zeros, cfg)
+
+
+def test_the_combined_column_is_asked_for_by_name_and_applies_all_three_perturbations(capsys) -> None:
+    """Not in the default matrix; named, it flies a 15 % heavier drone, 60 ms late, at velocity gains x0.7."""
+    assert "firmware combined" not in transfer.TransferConfig(POLICY).columns
+    column = next(c for c in transfer.EXTRA_COLUMNS if c.name == "firmware combined")
+    world = transfer.build_episodes(load_policy(POLICY), column, transfer.ROWS[0], "perfect")
+    try:
+        perturbation = world.sim.perturbation
+        assert (perturbation.mass_scale, perturbation.latency_s, perturbation.gain_scale) == (1.15, 0.06, 0.7)
+        assert world.sim.controller_kind == "firmware"
+    finally:
+        world.sim.close()
+    with pytest.raises(SystemExit):
+        main(["transfer", POLICY, "--columns", "firmware everything"])
+    err = capsys.readouterr().err
+    assert "unknown column(s) 'firmware everything'" in err and "firmware combined (or all)" in err

@@ -21,6 +21,7 @@ from pathlib import Path
 from marlander_lite.experiments.commands import _choices
 from marlander_lite.experiments.transfer import (
     COLUMNS,
+    EXTRA_COLUMNS,
     ROWS,
     TransferConfig,
     format_flight_table,
@@ -45,12 +46,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--episodes", type=int, default=200, help="episodes per cell (default 200)")
     p.add_argument("--seed", type=int, default=0, help="base seed of the episodes (default 0)")
     columns = tuple(c.name for c in COLUMNS)
+    extra = tuple(c.name for c in EXTRA_COLUMNS)
     rows = tuple(r.name for r in ROWS)
+    column_help = f"comma-separated, from: {', '.join(columns)} (the default), {', '.join(extra)} (or all)"
     p.add_argument(
         "--columns",
-        type=_choices(columns, "column(s)"),
+        type=_choices(columns + extra, "column(s)"),
         default=columns,
-        help=f"comma-separated, from: {', '.join(columns)} (or all)".replace("%", "%%"),  # argparse formats help
+        help=column_help.replace("%", "%%"),  # argparse formats help
     )
     p.add_argument(
         "--rows", type=_choices(rows, "row(s)"), default=rows, help=f"comma-separated, from: {', '.join(rows)} (or all)"
