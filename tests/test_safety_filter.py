@@ -253,3 +253,12 @@ def test_swarm_evaluate_records_the_filter_settings_and_refuses_bad_ones(tmp_pat
         main([*args, "--filter-settings", "cone_radius=wide", "--out", str(tmp_path / "bad")])
     assert "is not KEY=NUMBER" in capsys.readouterr().err
     assert not (tmp_path / "bad").exists()
+    # Settings without a filtered controller, or a filtered centralised policy without its file, would fly nothing
+    # the user asked for: refused before any trial.
+    with pytest.raises(SystemExit):
+        main([*args[:4], "--filter-settings", "cone_radius=0.04", "--sizes", "2", "--out", str(tmp_path / "bad")])
+    assert "--filter-settings sets the filter of --shared-filter or --centralised-filter" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["swarm", "evaluate", "--baseline", "--centralised-filter", "--out", str(tmp_path / "bad")])
+    assert "--centralised-filter flies the policy given with --centralised FILE" in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()

@@ -12,7 +12,7 @@ rates and cluster-bootstrap intervals for the landing error
 ``shared-apf``   the shared policy plus the APF repulsion of the baseline (as MorphoLander adds it to a
                  single-agent policy, Sec. IV-E), any N;
 ``shared-filter`` the shared policy through the safety filter (:mod:`marlander_lite.swarm.safety_filter`), any N;
-``centralised-filter`` the centralised policy through the safety filter, as ``marlander deploy`` flies it;
+``centralised-filter`` the centralised policy through the safety filter, as ``marlander deploy`` flies it (its own N);
 ``baseline``     PID + APF (:class:`~marlander_lite.experiments.controllers.PIDAPFController`, tuned gains), any N.
 
 Command line (writes ``scaling.csv``, ``scaling.json`` and ``scaling.md`` into ``--out``)::
@@ -396,6 +396,10 @@ def run(args: argparse.Namespace, program: str = "marlander swarm evaluate") -> 
     """Fly every requested cell and write the tables (their note says how to fly them again); returns the .md."""
     if not (args.shared or args.centralised or args.baseline):
         raise ValueError("Nothing to fly: give --shared FILE, --centralised FILE and/or --baseline.")
+    if args.centralised_filter and not args.centralised:
+        raise ValueError("--centralised-filter flies the policy given with --centralised FILE; give it.")
+    if args.filter_settings and not (args.shared_filter or args.centralised_filter):
+        raise ValueError("--filter-settings sets the filter of --shared-filter or --centralised-filter; give one.")
     check_results_free(args.out, args.stem, args.force)
     options = {"controller": "firmware"} if args.firmware else {}
     settings = parse_settings(args.filter_settings or "")
