@@ -414,7 +414,7 @@ def test_shared_training_applies_the_smoothness_and_separation_aids_it_records(t
     from marlander_lite.swarm.train import train_shared
 
     config = SHARED_PRESETS["shared-quick-local"].replace(
-        total_steps=4096, swarm_sizes=(2, 3), drones_per_size=32, n_steps=32, batch_size=512, seed=0,
+        total_steps=4096, swarm_sizes=(2, 3), drones_per_size=32, n_steps=32, batch_size=496, seed=0,
         smoothness_temporal=1.0, smoothness_spatial=1.0, neighbour_radius=0.5, collision_credit="involved",
         separation_penalty=10.0,
     )  # fmt: skip
