@@ -119,6 +119,7 @@ def test_the_keys_override_the_filter_s_settings(example):
         "cone_slope": 2.0,
         "reaction_time": 0.3,
         "cone_radius": 0.04,
+        "settled_sink_limit": 0.8,
     }
     config = LabConfig.from_dict(example).safety_filter.filter_config()
     expected = dataclasses.replace(
@@ -128,6 +129,7 @@ def test_the_keys_override_the_filter_s_settings(example):
         cone_slope=2.0,
         reaction_time=0.3,
         cone_radius=0.04,
+        settled_sink_limit=0.8,
     )
     assert config == expected
 
@@ -142,6 +144,10 @@ def test_the_keys_override_the_filter_s_settings(example):
         ({"min_distance": -0.1}, r"^safety_filter.min_distance: Input should be greater than 0 \(got -0.1\)"),
         ({"cone_slope": -1.0}, r"^safety_filter.cone_slope: Input should be greater than or equal to 0 \(got -1.0\)"),
         ({"cone_radius": 0.5}, r"^safety_filter.cone_radius: Input should be less than or equal to 0.1 \(got 0.5\)"),
+        (
+            {"settled_sink_limit": -0.8},
+            r"^safety_filter.settled_sink_limit: Input should be greater than or equal to 0 \(got -0.8\)",
+        ),
         ({"enabled": "yes"}, r"^safety_filter.enabled: Input should be a valid boolean \(got 'yes'\)"),
         ({"gain": float("nan")}, r"^safety_filter.gain: Input should be a finite number"),
         (  # in range for the key, refused by the filter itself (its activation distance is 1 m)

@@ -262,3 +262,19 @@ def test_swarm_evaluate_records_the_filter_settings_and_refuses_bad_ones(tmp_pat
         main(["swarm", "evaluate", "--baseline", "--centralised-filter", "--out", str(tmp_path / "bad")])
     assert "--centralised-filter flies the policy given with --centralised FILE" in capsys.readouterr().err
     assert not (tmp_path / "bad").exists()
+
+
+def test_settled_sink_limit_caps_only_a_settled_drones_descent() -> None:
+    # A drone 2 cm above its goal, over its pad, at rest: settled. Its own command of 1.5 m/s down passes unchanged by
+    # default; with settled_sink_limit 0.8 it becomes 0.8 m/s down, the horizontal part untouched.
+    goal = np.array([[0.01, 0.0, 0.02]])
+    command = np.array([[0.1, 0.0, -1.5]])
+    settled = settled_drones(goal, np.zeros((1, 3)), SafetyFilterConfig())
+    assert settled.all()
+    out, _ = filter_commands(goal, np.zeros((1, 3)), command, settled=settled, rel_goal=goal)
+    np.testing.assert_array_equal(out, command)
+    limited = SafetyFilterConfig(settled_sink_limit=0.8)
+    out, acted = filter_commands(goal, np.zeros((1, 3)), command, limited, settled=settled, rel_goal=goal)
+    np.testing.assert_allclose(out, [[0.1, 0.0, -0.8]])
+    assert acted.all()
+    assert parse_settings("settled_sink_limit=0.8") == {"settled_sink_limit": 0.8}

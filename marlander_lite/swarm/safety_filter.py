@@ -131,6 +131,11 @@ class SafetyFilterConfig:
     """A drone within this height of its goal (m), over its pad and slower than ``settled_speed`` is settled."""
     settled_speed: float = 0.1
     """See ``settled_distance`` (m/s)."""
+    settled_sink_limit: float = 0.0
+    """Fastest descent (m/s) a settled drone's own command may ask for; 0: its command passes unchanged (the
+    default). A drone the approach guard held a few centimetres up counts as settled and then got the policy's command,
+    up to 1.7 m/s down, which a slow tracker turned into touchdowns above 0.5 m/s (docs/transfer.md, the combined
+    column); 0.8 removed them there without costing moving pads. Not the default: shipped results fly without it."""
     iterations: int = 6
     """Sweeps of the cyclic projection over every drone's neighbours."""
 
@@ -249,6 +254,8 @@ def filter_commands(
         speed = np.linalg.norm(u, axis=-1, keepdims=True)
         u *= np.minimum(1.0, max_speed / np.maximum(speed, _EPS))
     u = np.where(settled[..., None], command, u)
+    if config.settled_sink_limit > 0:
+        u[..., 2] = np.where(settled, np.maximum(u[..., 2], -config.settled_sink_limit), u[..., 2])
     return u, np.linalg.norm(u - command, axis=-1) > 1e-9
 
 
