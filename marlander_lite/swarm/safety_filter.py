@@ -134,8 +134,8 @@ class SafetyFilterConfig:
     settled_sink_limit: float = 0.0
     """Fastest descent (m/s) a settled drone's own command may ask for; 0: its command passes unchanged (the
     default). A drone the approach guard held a few centimetres up counts as settled and then got the policy's command,
-    up to 1.7 m/s down, which a slow tracker turned into touchdowns above 0.5 m/s (docs/transfer.md, the combined
-    column); 0.8 removed them there without costing moving pads. Not the default: shipped results fly without it."""
+    up to 1.7 m/s down, which a slow tracker turned into touchdowns above 0.5 m/s; 0.8 cut them from 6 and 8 to 1 and 0
+    of 200 (docs/transfer.md, the combined column). Off by default: the shipped results were flown without it."""
     iterations: int = 6
     """Sweeps of the cyclic projection over every drone's neighbours."""
 
