@@ -352,6 +352,23 @@ def check_08(shown: Shown) -> None:
     assert set(combined) == {p.parent.name for p in (RESULTS / "transfer").glob("*-combined*/transfer.csv")}
     alone, filtered = combined["paper-robust-smooth-combined"], combined["paper-robust-smooth-combined-safety-filter"]
     assert max(float(alone[row]) for row in ("floor", "UR10")) < 90.0 <= min(float(filtered[r]) for r in alone)
+    # Section 4e: the cap worked by hand (1.5 m/s down passes with 0, becomes 0.8 m/s with the default), then each
+    # filtered matrix flown without and with it: the numbers shown are the files', and the cap adds no fast touchdown.
+    assert dict(shown.numbers(r"settled True, settled_sink_limit (\S+): sent \[\S+, \S+, (\S+)\] m/s")) == {
+        0.0: -1.5,
+        0.8: -0.8,
+    }
+    title = "| matrix | worst cell, no cap |"
+    capped = markdown_rows(title + shown.text.split(title, 1)[1].split("\n\n", 1)[0])
+    bases = {p.parent.name.removesuffix("-sink-limit") for p in (RESULTS / "transfer").glob("*-sink-limit/*.csv")}
+    assert {r["matrix"] for r in capped} == {name for name in bases if (RESULTS / "transfer" / name).is_dir()}
+    for r in capped:
+        for name, worst, fast in ((r["matrix"], "worst cell, no cap", "touchdowns > 0.5 m/s, no cap"),
+                                  (r["matrix"] + "-sink-limit", "worst cell, cap 0.8 m/s", "cap 0.8 m/s")):  # fmt: skip
+            cells = read_csv(RESULTS / "transfer" / name / "transfer.csv")
+            assert close(first_number(r[worst]), 100 * min(float(c["success_rate"]) for c in cells), 0.051), r
+            assert int(r[fast]) == sum(int(c["crashes_too_fast"]) for c in cells), r
+        assert int(r["cap 0.8 m/s"]) <= int(r["touchdowns > 0.5 m/s, no cap"]), r
     live = markdown_rows("\n".join(shown.text.rstrip().splitlines()[-3:]))
     assert len(live) == 1 and live[0][""] == "UR10"
     for column in ("point mass", "PyBullet firmware", "PyBullet PID"):
@@ -381,7 +398,8 @@ def check_09(shown: Shown) -> None:
     assert "**crazyflie_firmware_fast_moving_smooth_filter**" in shown_tables
     assert "**crazyflie_firmware_filter**" in shown_tables
     # The tables of the filter as it is now, on both simulators, with the landing error under the paper's 2.26 cm.
-    for stem in ("scaling_filter_guard", "crazyflie_firmware_filter_guard"):
+    stems = ("scaling_filter_guard", "crazyflie_firmware_filter_guard")
+    for stem in (*stems, "scaling_filter_sink_limit", "crazyflie_firmware_filter_sink_limit"):
         table = shown_tables.split(f"**{stem}**", 1)[1].split("**", 1)[0]
         errors = [
             first_number(row["landing error cm [95 % CI]"])

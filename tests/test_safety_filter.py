@@ -249,6 +249,8 @@ def test_swarm_evaluate_records_the_filter_settings_and_refuses_bad_ones(tmp_pat
     table = (tmp_path / "scaling.md").read_text()
     assert "| centralised-filter | static-floor | 2 | 2 |" in table
     assert "--filter-settings cone_radius=0.04" in table  # the note's command flies the same filter again
+    # ... and the note lists every setting as flown, defaults included.
+    assert "Safety filter as flown: min_distance 0.19," in table and "cone_radius 0.04," in table
     with pytest.raises(SystemExit):
         main([*args, "--filter-settings", "cone_radius=wide", "--out", str(tmp_path / "bad")])
     assert "is not KEY=NUMBER" in capsys.readouterr().err
@@ -265,16 +267,22 @@ def test_swarm_evaluate_records_the_filter_settings_and_refuses_bad_ones(tmp_pat
 
 
 def test_settled_sink_limit_caps_only_a_settled_drones_descent() -> None:
-    # A drone 2 cm above its goal, over its pad, at rest: settled. Its own command of 1.5 m/s down passes unchanged by
-    # default; with settled_sink_limit 0.8 it becomes 0.8 m/s down, the horizontal part untouched.
+    # A drone 2 cm above its goal, over its pad, at rest: settled. Its own command of 1.5 m/s down becomes 0.8 m/s down
+    # by default, the horizontal part untouched; with settled_sink_limit 0 it passes unchanged, as before the cap.
     goal = np.array([[0.01, 0.0, 0.02]])
     command = np.array([[0.1, 0.0, -1.5]])
     settled = settled_drones(goal, np.zeros((1, 3)), SafetyFilterConfig())
     assert settled.all()
-    out, _ = filter_commands(goal, np.zeros((1, 3)), command, settled=settled, rel_goal=goal)
-    np.testing.assert_array_equal(out, command)
-    limited = SafetyFilterConfig(settled_sink_limit=0.8)
-    out, acted = filter_commands(goal, np.zeros((1, 3)), command, limited, settled=settled, rel_goal=goal)
+    out, acted = filter_commands(goal, np.zeros((1, 3)), command, settled=settled, rel_goal=goal)
     np.testing.assert_allclose(out, [[0.1, 0.0, -0.8]])
     assert acted.all()
+    uncapped = SafetyFilterConfig(settled_sink_limit=0.0)
+    out, acted = filter_commands(goal, np.zeros((1, 3)), command, uncapped, settled=settled, rel_goal=goal)
+    np.testing.assert_array_equal(out, command)
+    assert not acted.any()
+    # A settled drone asking to sink slower than the cap, or to climb, is left alone.
+    for vertical in (-0.5, 0.3):
+        gentle = np.array([[0.0, 0.0, vertical]])
+        out, _ = filter_commands(goal, np.zeros((1, 3)), gentle, settled=settled, rel_goal=goal)
+        np.testing.assert_array_equal(out, gentle)
     assert parse_settings("settled_sink_limit=0.8") == {"settled_sink_limit": 0.8}

@@ -16,6 +16,7 @@ from marlander_lite.platforms import PlatformConfig
 from marlander_lite.pointmass.family import NOMINAL, DynamicsFamily
 from marlander_lite.pointmass.simulator import GRAVITY, PointMassParams, PointMassSwarm
 from marlander_lite.policy_file import load_policy
+from marlander_lite.swarm.safety_filter import SafetyFilterConfig
 from marlander_lite.task import TaskConfig
 
 POLICY = "data/policies/quick-cpu.safetensors"
@@ -263,11 +264,15 @@ def test_transfer_command_records_the_safety_filter_settings(tmp_path, capsys) -
     assert main([*args, "--safety-filter", "cone_radius=0.04", "--out", str(out)]) == 0
     data = json.loads((out / "transfer.json").read_text())
     assert data["config"]["safety_filter"] == {"cone_radius": 0.04}
+    # Every setting as flown is kept, so the file stays true if a default changes later.
+    resolved = data["safety_filter_resolved"]
+    assert resolved == {**SafetyFilterConfig().to_dict(), "cone_radius": 0.04}
     assert "through the safety filter (cone_radius 0.04)" in (out / "transfer.md").read_text()
     assert main([*args, "--safety-filter", "--out", str(tmp_path / "defaults")]) == 0
     assert json.loads((tmp_path / "defaults" / "transfer.json").read_text())["config"]["safety_filter"] == {}
     assert main([*args, "--out", str(tmp_path / "bare")]) == 0
-    assert json.loads((tmp_path / "bare" / "transfer.json").read_text())["config"]["safety_filter"] is None
+    bare = json.loads((tmp_path / "bare" / "transfer.json").read_text())
+    assert bare["config"]["safety_filter"] is None and "safety_filter_resolved" not in bare
 
 
 def test_a_matrix_written_before_failures_were_counted_still_reads(tmp_path) -> None:

@@ -397,7 +397,10 @@ def write_results(config: TransferConfig, results: list[CellResult], out: Path, 
         for r in results:
             f.write(",".join(_csv_value(getattr(r, name)) for name in CSV_FIELDS) + "\n")
     digest = hashlib.sha256(Path(config.policy).read_bytes()).hexdigest()
-    meta = {"config": asdict(config), "policy_sha256": digest, "wall_s": round(wall_s, 1)}
+    meta: dict[str, Any] = {"config": asdict(config), "policy_sha256": digest, "wall_s": round(wall_s, 1)}
+    if config.safety_filter is not None:
+        # The settings as flown, defaults included: a later change of a default must not change what this file says.
+        meta["safety_filter_resolved"] = SafetyFilterConfig.from_dict(config.safety_filter).to_dict()
     json_path.write_text(json.dumps({**meta, "cells": [asdict(r) for r in results]}, indent=2) + "\n")
     md_path.write_text(
         f"Transfer matrix of `{config.policy}` ({config.episodes} episodes a cell, seed {config.seed}, "

@@ -435,6 +435,10 @@ def run(args: argparse.Namespace, program: str = "marlander swarm evaluate") -> 
         f"{args.simulator}{' (firmware tracker)' if args.firmware else ''}, Vicon sensing, the paper's random starts, "
         f"{args.trials} trials per cell, seed {args.seed}, 30 s limit: `{command_line(args, program)}`."
     )
+    if args.shared_filter or args.centralised_filter:
+        # Every setting as flown, defaults included, so that a later change of a default leaves this note true.
+        resolved = SafetyFilterConfig.from_dict(settings).to_dict()
+        note += " Safety filter as flown: " + ", ".join(f"{k} {v:g}" for k, v in resolved.items()) + "."
     md = write_results(rows, args.out, args.stem, note, force=args.force)
     print(md)
     return md

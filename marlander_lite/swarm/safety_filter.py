@@ -131,11 +131,12 @@ class SafetyFilterConfig:
     """A drone within this height of its goal (m), over its pad and slower than ``settled_speed`` is settled."""
     settled_speed: float = 0.1
     """See ``settled_distance`` (m/s)."""
-    settled_sink_limit: float = 0.0
-    """Fastest descent (m/s) a settled drone's own command may ask for; 0: its command passes unchanged (the
-    default). A drone the approach guard held a few centimetres up counts as settled and then got the policy's command,
-    up to 1.7 m/s down, which a slow tracker turned into touchdowns above 0.5 m/s; 0.8 cut them from 6 and 8 to 1 and 0
-    of 200 (docs/transfer.md, the combined column). Off by default: the shipped results were flown without it."""
+    settled_sink_limit: float = 0.8
+    """Fastest descent (m/s) a settled drone's own command may ask for; 0: its command passes unchanged (the default
+    before 2026-11-26, with which every filtered result shipped before then was flown). A drone the approach guard held
+    a few centimetres up counts as settled and then got the policy's command, up to 1.7 m/s down, which a slow tracker
+    turned into touchdowns above 0.5 m/s; 0.8 cut them from 6 and 8 to 1 and 0 of 200 (docs/transfer.md, the combined
+    column) and changed no other shipped filtered matrix by more than a point (the ``-sink-limit`` matrices)."""
     iterations: int = 6
     """Sweeps of the cyclic projection over every drone's neighbours."""
 
