@@ -289,8 +289,8 @@ class SafetyFilterSection:
     the pad centre, so that a policy hovering off-centre still lands on the centre; 0: no centring."""
     settled_sink_limit: Annotated[Real, Field(ge=0, le=3)] = _FILTER_DEFAULTS.settled_sink_limit
     """Fastest descent (m/s) the policy may command a drone the filter counts as settled (within 3 cm of its goal,
-    over its pad, slow); 0: no limit. With a slow tracker 0.8 cut touchdowns above 0.5 m/s from 14 to 1 in 400
-    episodes (docs/transfer.md)."""
+    over its pad, slow); 0: no limit, as before 2026-11-26. With a slow tracker 0.8 (the default) cut touchdowns above
+    0.5 m/s from 14 to 1 in 400 episodes (docs/transfer.md)."""
 
     def __post_init__(self) -> None:
         self.filter_config()  # the filter's own checks, as a ConfigError naming this section
