@@ -267,6 +267,7 @@ def test_transfer_command_records_the_safety_filter_settings(tmp_path, capsys) -
     # Every setting as flown is kept, so the file stays true if a default changes later.
     resolved = data["safety_filter_resolved"]
     assert resolved == {**SafetyFilterConfig().to_dict(), "cone_radius": 0.04}
+    assert (resolved["min_distance"], resolved["settled_sink_limit"]) == (0.19, 0.8)  # the documented defaults
     assert "through the safety filter (cone_radius 0.04)" in (out / "transfer.md").read_text()
     assert main([*args, "--safety-filter", "--out", str(tmp_path / "defaults")]) == 0
     assert json.loads((tmp_path / "defaults" / "transfer.json").read_text())["config"]["safety_filter"] == {}

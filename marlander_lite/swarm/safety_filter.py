@@ -136,7 +136,7 @@ class SafetyFilterConfig:
     before 2026-11-26, with which every filtered result shipped before then was flown). A drone the approach guard held
     a few centimetres up counts as settled and then got the policy's command, up to 1.7 m/s down, which a slow tracker
     turned into touchdowns above 0.5 m/s; 0.8 cut them from 6 and 8 to 1 and 0 of 200 (docs/transfer.md, the combined
-    column) and changed no other shipped filtered matrix by more than a point (the ``-sink-limit`` matrices)."""
+    column) and lowered no cell of another shipped filtered matrix by more than a point (``*-sink-limit``)."""
     iterations: int = 6
     """Sweeps of the cyclic projection over every drone's neighbours."""
 
