@@ -45,3 +45,22 @@ def test_the_campaign_flies_at_the_largest_allowed_speed(fault_campaign):
     assert speed >= load_lab_config(EXAMPLE_CONFIG).limits.max_speed
     with pytest.raises(ValueError):
         lab.replace(limits=dataclasses.replace(lab.limits, max_speed=speed + 0.02))
+
+
+def test_a_drone_whose_moving_plate_leaves_it_during_a_landing_lands_on_the_floor(fault_campaign, tmp_path):
+    """Moving arc, seed 17, ``nan-pose`` on cf2 (the campaign's draw; found on 2026-11-26): held over its moving pad
+    by the approach guard, cf2 is still flying at the 12 s limit, and the land of every drone sends it down vertically
+    onto the plate's height while the UR10 carries the plate on. It used to end that land beside the plate at 0.75 m
+    and stop its motors there, dropping it; now the landing notices what is under it and lands it on the floor."""
+    from marlander_lite.deploy.rehearsal import FaultSpec, rehearse
+    from marlander_lite.policy_file import load_policy
+
+    lab = fault_campaign.campaign_lab("moving-arc", 12.0)
+    policy = load_policy(fault_campaign.POLICIES["moving"], lab.task_config(True))
+    fault = FaultSpec("nan-pose", start_s=0.2786, drone=1)
+    result = rehearse(lab, policy, simulator="crazyflie", fault=fault, seed=17, log_path=tmp_path / "log.jsonl")
+    replanned = [e for e in result.mission.events if e.kind == "land_replanned"]
+    assert len(replanned) == 1 and replanned[0].drone == 1, result.summary()
+    # Simulator truth: both drones down with their motors off, cf2 at rest on the floor.
+    assert result.safe and not result.motors_on.any(), result.summary()
+    assert result.final_positions[1, 2] < 0.1 and result.final_speeds[1] < fault_campaign.DOWN_SPEED

@@ -178,13 +178,21 @@ class LandingControl:
     def _landings(self, est: SwarmEstimate) -> None:
         """Stop the motors of landing drones once they rest (or when their landing overran)."""
         land, margin = self.landings, self.lab.safety.land_timeout_margin_s
+        stale = self.lab.safety.stale_hover_s
         for i, (t_land, duration, surface) in list(land.planned.items()):
             if self.phase[i] != DronePhase.LANDING:
                 del land.planned[i]
                 continue
-            _, pad = surface_below(est.pos[i], est, self.lab.geofence.z[0])
+            below, pad = surface_below(est.pos[i], est, self.lab.geofence.z[0])
+            fresh = not est.drone_invalid[i] and est.drone_age[i] <= stale
+            if fresh and below < surface - REST_HEIGHT:
+                # What it was landing on moved away (a UR10 carried the plate on): its land would end beside the
+                # plate at the plate's height and stop the motors there, dropping it. It lands on what is below now.
+                message = f"{self.names[i]}: the surface under it moved away: landing at {below:.2f} m instead"
+                self.event("land_replanned", message, i)
+                self._land(i, est, surface=below)
+                continue
             surface_vel = np.zeros(3) if pad is None else est.pad_vel[pad]
-            stale = self.lab.safety.stale_hover_s
             resting = rests(est, i, surface, surface_vel, self.task.landed_height, stale)
             elapsed = self.t - t_land
             if (elapsed >= duration and resting) or elapsed > duration + margin:

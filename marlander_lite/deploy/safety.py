@@ -157,6 +157,7 @@ EventKind = Literal[
     "off_pad_contact",
     "land",
     "motors_off",
+    "land_replanned",
     "land_timeout",
     "flight_timeout",
     "interrupt",
