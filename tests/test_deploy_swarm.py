@@ -281,3 +281,23 @@ def test_every_drone_of_eight_obeys_the_safety_rules(lab8, fault, drone):
         assert kinds.index("stale_hover") < kinds.index("stale_land"), kinds
     if fault == "link-loss":
         assert m.phases[drone] == "lost" and all(p == "down" for i, p in enumerate(m.phases) if i != drone)
+
+
+def test_a_landing_is_replanned_only_on_fresh_poses_of_the_drone_and_every_pad(lab8):
+    """Over the plate ``surface_below`` gives the pads' height; a drone beside it and below it, the floor. That drop is
+    what re-plans a landing, and only when the drone's pose and every pad's are valid and fresh."""
+    from marlander_lite.deploy.landing import surface_below, surface_known
+
+    plate = np.array([0.0, 0.0, 0.78])
+    pads = plate + np.array([p.offset for p in lab8.drone_pads()])
+    over = pads + np.array([0.0, 0.0, 0.05])
+    beside = over + np.array([1.0, 0.0, -0.08])  # the plate moved on: 1 m away, 3 cm below its pad tops
+    est = estimate(lab8, beside, np.zeros_like(beside), plate)
+    assert surface_below(over[0], est, 0.0) == (pads[0, 2], 0)
+    assert surface_below(beside[0], est, 0.0) == (0.0, None)
+    assert surface_known(est, 0, 0.25)
+    for field, value in (("drone_invalid", True), ("pad_invalid", True), ("drone_age", 1.0), ("pad_age", 1.0)):
+        stale = dataclasses.replace(est, **{field: np.full(lab8.num_drones, value)})
+        assert not surface_known(stale, 0, 0.25), field
+    one_pad = dataclasses.replace(est, pad_age=np.r_[np.zeros(lab8.num_drones - 1), 1.0])
+    assert not surface_known(one_pad, 0, 0.25)  # any pad: surface_below looks at every one

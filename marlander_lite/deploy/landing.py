@@ -101,6 +101,15 @@ def lingering(
     return near & (c.rel_speed <= HANDOVER_MAX_REL_SPEED) & (pad_speed <= HANDOVER_MAX_PAD_SPEED)
 
 
+def surface_known(est: SwarmEstimate, i: int, stale_s: float) -> bool:
+    """Whether :func:`surface_below` can be trusted for drone ``i``: its pose and every pad's are valid and fresh.
+
+    A landing is re-planned only on such data: a pad lost from view for a moment must not make the plate under a
+    landing drone look like the floor."""
+    drone = not est.drone_invalid[i] and est.drone_age[i] <= stale_s
+    return bool(drone and not est.pad_invalid.any() and (est.pad_age <= stale_s).all())
+
+
 def rests(
     est: SwarmEstimate, i: int, surface: float, surface_vel: np.ndarray, landed_height: float, stale_s: float
 ) -> bool:
@@ -184,8 +193,7 @@ class LandingControl:
                 del land.planned[i]
                 continue
             below, pad = surface_below(est.pos[i], est, self.lab.geofence.z[0])
-            fresh = not est.drone_invalid[i] and est.drone_age[i] <= stale
-            if fresh and below < surface - REST_HEIGHT:
+            if below < surface - REST_HEIGHT and surface_known(est, i, stale):
                 # What it was landing on moved away (a UR10 carried the plate on): its land would end beside the
                 # plate at the plate's height and stop the motors there, dropping it. It lands on what is below now.
                 message = f"{self.names[i]}: the surface under it moved away: landing at {below:.2f} m instead"
