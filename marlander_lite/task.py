@@ -36,6 +36,8 @@ OBS_PER_DRONE = 13
 EQ2_POSITION, EQ2_VELOCITY = slice(0, 3), slice(7, 10)
 """Where ``p`` (position minus goal, m) and ``v`` (velocity relative to the platform, m/s) sit in each drone's
 eq. 2 observation (:func:`observe`: ``[p, q, v, omega]``)."""
+PLATFORM_VELOCITY = slice(13, 16)
+"""Where a drone's observation holds its pad's velocity (m/s), with ``TaskConfig.observe_platform_velocity``."""
 ACT_PER_DRONE = 3
 """Length of one drone's action (eq. 3): a velocity command along x, y, z."""
 
@@ -371,13 +373,13 @@ def min_separation(pos: np.ndarray) -> np.ndarray:
     answers instead (:func:`marlander_lite.pointmass.kernels.min_separation`): with 16 drones this is the
     costliest line of a step, 120 pairs, and of every spawn draw.
     """
-    kernels = _compiled_kernels()
+    kernels = compiled_kernels()
     if kernels is not None and pos.ndim == 3 and pos.shape[-1] == 3 and pos.dtype == np.float64:
         return kernels.min_separation(pos)
     return min_separation_numpy(pos)
 
 
-def _compiled_kernels() -> Any:
+def compiled_kernels() -> Any:
     """The compiled kernels' module, or None when numba is missing or ``MARLANDER_LITE_ENGINE=numpy`` is set now."""
     global _KERNELS
     if _KERNELS is None:
@@ -497,7 +499,7 @@ def sample_spawn_positions(
             u[near] = pads[ids[near]] + offset
         return u
 
-    if _compiled_kernels() is not None:
+    if compiled_kernels() is not None:
         from marlander_lite.pointmass import spawn_kernels  # here, not at the top: no import cycle
 
         pos = spawn_kernels.sample_spawn_positions(rng, z_lo, z_hi, near_pad, pads, config, max_tries)

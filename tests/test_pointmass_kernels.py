@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from marlander_lite import task
+from marlander_lite.envs.options import policy_input
 from marlander_lite.episodes import LandingEpisodes
 from marlander_lite.platforms import PlateGeometry, PlatformConfig
 from marlander_lite.pointmass import PointMassParams, PointMassSwarm, kernels
@@ -46,6 +47,24 @@ def test_min_separation_kernel_propagates_nan_and_inf_like_numpy():
     ours = kernels.min_separation(pos)
     np.testing.assert_array_equal(ours, reference)
     assert np.isnan(ours[[1, 3]]).all() and np.isfinite(ours[[0, 2]]).all()
+
+
+@pytest.mark.parametrize("order", ["C", "F"])
+@pytest.mark.parametrize("shape", [(1, 1, 13), (37, 2, 13), (5, 16, 19)])
+def test_compiled_policy_input_is_numpys_cast_to_the_last_bit(monkeypatch, order, shape):
+    """``policy_input`` through ``kernels.policy_rows``: numpy's float32 rounding, one env per row, drone by drone."""
+    rng = np.random.default_rng(shape[1])
+    obs = np.asarray(rng.normal(0, 50, shape) * 10.0 ** rng.integers(-8, 3, shape), order=order)
+    obs[0, 0, :3] = (1.0 + 2.0**-24, -0.0, 1e-46)  # halfway between two float32 (to even), signed zero, underflow
+    monkeypatch.setenv(kernels.ENGINE_VARIABLE, "numba")
+    compiled = policy_input(obs)
+    monkeypatch.setenv(kernels.ENGINE_VARIABLE, "numpy")
+    reference = policy_input(obs)
+    assert compiled.dtype == np.float32 and compiled.flags.c_contiguous
+    np.testing.assert_array_equal(compiled.view(np.uint32), reference.view(np.uint32))
+    rows = compiled.reshape(shape)  # drone i's numbers are i d ... (i + 1) d - 1 of its env's row
+    np.testing.assert_array_equal(rows, obs.astype(np.float32))
+    assert rows[0, 0, 0] == 1.0 and np.signbit(rows[0, 0, 1]) and rows[0, 0, 2] == 0.0
 
 
 def spawn(monkeypatch, engine, num_drones, near_fraction, separation, swarms=60, seed=3, near_low=0.15):

@@ -126,6 +126,23 @@ def min_separation(pos: np.ndarray) -> np.ndarray:
     return out
 
 
+# ---------------------------------------------------------------- the policy's input
+@jit_kernel
+def policy_rows(obs: np.ndarray, out: np.ndarray) -> None:
+    """``envs.options.policy_input`` compiled: ``obs`` ``(num_envs, N, d)`` (any layout) into the float32
+    ``out`` ``(num_envs, N d)``, one env per row, drone after drone.
+
+    The cast rounds each number to the nearest float32 as numpy's does. The copy transposes the simulators'
+    env-major arrays into rows, which numpy does element by element, three times slower than this loop.
+    """
+    e, n, d = obs.shape
+    for i in range(n):
+        for c in range(d):
+            column = i * d + c
+            for k in range(e):
+                out[k, column] = obs[k, i, c]
+
+
 # ---------------------------------------------------------------- the step, in two halves
 @jit_kernel
 def _rest_height(
