@@ -255,6 +255,26 @@ def test_without_a_filter_the_runner_returns_the_policy_s_velocities():
     assert u is velocity and not changed.any()
 
 
+def test_the_runner_leads_a_braking_pad_by_the_pad_lead():
+    """With ``pad_lead`` the runner adds ``pad_lead`` times the pads' acceleration, which it estimates from the pads'
+    tracked velocities and the estimates' times: a plate braking at 1 m/s^2 along x, 0.2 s lead, -0.2 m/s."""
+    apart = np.array([[-0.6, 0.0, 1.0], [0.6, 0.0, 1.0]])  # 1.2 m apart: no pair rule; 1 m up: no guard
+    goals = apart - [0.0, 0.0, 1.0]
+    runner = PolicyRunner(HeadOn(), TaskConfig(num_drones=2), 1.0, safety_filter=SafetyFilterConfig(pad_lead=0.2))
+    still, idle = np.zeros((2, 3)), np.zeros(2, dtype=bool)
+    for k in range(48):  # 48 Hz, 1 s
+        moving = dataclasses.replace(
+            estimate(apart, goals=goals), t=k / 48, pad_vel=np.tile([0.5 - k / 48, 0, 0], (2, 1))
+        )
+        u, changed = runner.filter_velocity(still, moving, idle)
+    np.testing.assert_allclose(u, [[-0.2, 0.0, 0.0]] * 2, atol=1e-6)
+    assert changed.all()
+    # Without the lead the same estimates change nothing.
+    runner = PolicyRunner(HeadOn(), TaskConfig(num_drones=2), 1.0, safety_filter=SafetyFilterConfig())
+    u, changed = runner.filter_velocity(still, moving, idle)
+    assert runner.pad_acceleration is None and not changed.any() and not u.any()
+
+
 # ------------------------------------------------------------------ the mission
 class RecordingLink:
     """The Crazyflies of a mission unit test: never lost; velocity setpoints recorded per tick."""

@@ -10,12 +10,14 @@ import pytest
 from marlander_lite.platforms import PlatformConfig
 from marlander_lite.swarm.evaluation import evaluate_cell
 from marlander_lite.swarm.safety_filter import (
+    PadAcceleration,
     SafetyFilterConfig,
     filter_commands,
     parse_settings,
     settled_drones,
     with_safety_filter,
 )
+from marlander_lite.swarm.vec_env import SharedSwarmVecEnv
 
 SHARED = "data/policies/shared-quick-local.safetensors"
 MOVING = "data/policies/moving-smooth-16m.safetensors"
@@ -286,3 +288,79 @@ def test_settled_sink_limit_caps_only_a_settled_drones_descent() -> None:
         out, _ = filter_commands(goal, np.zeros((1, 3)), gentle, settled=settled, rel_goal=goal)
         np.testing.assert_array_equal(out, gentle)
     assert parse_settings("settled_sink_limit=0.8") == {"settled_sink_limit": 0.8}
+
+
+def test_pad_acceleration_estimate_converges_clips_and_restarts() -> None:
+    dt = 1 / 24
+    estimate = PadAcceleration()  # limit 3 m/s^2, smoothing 0.3, max_gap 0.5 s
+    # Two pads: the first brakes at 1 m/s^2 along x (the UR10 reversing), the second is still.
+    for k in range(40):
+        accel = estimate.update([[0.5 - 1.0 * k * dt, 0.0, 0.0], [0.0, 0.0, 0.0]], k * dt)
+    # The exponential average has forgotten its zero start: 0.7^39 of 1 m/s^2 is left.
+    np.testing.assert_allclose(accel, [[-1.0, 0.0, 0.0], [0.0, 0.0, 0.0]], atol=1e-5)
+    # A pad velocity change of 0.2 m/s in one step is 4.8 m/s^2: credited at the 3 m/s^2 limit (0.3 of it).
+    accel = estimate.update([[0.5 - 1.0 * 40 * dt, 0.2, 0.0], [0.0, 0.0, 0.0]], 40 * dt)
+    assert 0.3 * 3.0 * 0.99 < np.linalg.norm(accel[0] - 0.7 * np.array([-1.0, 0.0, 0.0])) < 0.3 * 3.0 * 1.01
+    # A jump of 1 m/s (24 m/s^2, beyond twice the limit) is a new episode or a glitch: that pad restarts at zero,
+    # the other keeps its estimate.
+    accel = estimate.update([[0.5 - 1.0 * 41 * dt, 0.2, 0.0], [1.0, 0.0, 0.0]], 41 * dt)
+    assert np.linalg.norm(accel[0]) > 0.5 and np.array_equal(accel[1], [0.0, 0.0, 0.0])
+    # After a pause longer than max_gap, nothing is differenced across it.
+    assert not estimate.update([[0.0, 0.2, 0.0], [1.0, 0.0, 0.0]], 41 * dt + 0.6).any()
+    with pytest.raises(ValueError, match="finite"):
+        estimate.update([[np.nan, 0.0, 0.0], [0.0, 0.0, 0.0]], 2.0)
+    with pytest.raises(ValueError, match="smoothing in"):
+        PadAcceleration(smoothing=0.0)
+
+
+def test_pad_lead_cancels_a_lagging_trackers_offset_behind_an_accelerating_pad() -> None:
+    """A first-order velocity tracker (time constant T) commanded ``u = v_pad + k (x_pad - x)`` trails a pad
+    accelerating at ``a`` by ``a T / k`` (by hand: the drone's velocity lags by ``a T``, which the position loop makes
+    up at ``k``). With the filter's pad lead ``T_lead = T`` it trails by nothing."""
+    a, tau, k, dt = 1.0, 0.2, 1.2, 1 / 240
+    expected = a * tau / k  # 0.167 m
+
+    def offset(pad_lead: float) -> float:
+        config, estimate = SafetyFilterConfig(pad_lead=pad_lead), PadAcceleration()
+        x = v = 0.0
+        for step in range(240 * 8):  # 8 s; the filter runs at 24 Hz, the tracker at 240 Hz
+            t = step * dt
+            if step % 10 == 0:
+                pad_x, pad_v = 0.5 * a * t * t, a * t
+                command = np.array([[pad_v + k * (pad_x - x), 0.0, 0.0]])
+                accel = estimate.update([[pad_v, 0.0, 0.0]], t)
+                u, _ = filter_commands([[x, 0.0, 2.0]], [[v, 0.0, 0.0]], command, config, pad_acceleration=accel)
+            v += (u[0, 0] - v) * dt / tau
+            x += v * dt
+        return 0.5 * a * (240 * 8 * dt) ** 2 - x
+
+    assert offset(0.0) == pytest.approx(expected, rel=0.1)
+    assert abs(offset(tau)) < 0.1 * expected
+    # The lead is a change the filter makes, reported as such; a wrong-shaped acceleration is refused.
+    out, acted = filter_commands([[0.0, 0.0, 2.0]], [[0.0] * 3], [[0.5, 0.0, 0.0]], SafetyFilterConfig(pad_lead=0.2),
+                                 pad_acceleration=[[1.0, 0.0, 0.0]])  # fmt: skip
+    np.testing.assert_allclose(out, [[0.7, 0.0, 0.0]])
+    assert acted.all()
+    with pytest.raises(ValueError, match="pad_acceleration must be"):
+        filter_commands([[0.0, 0.0, 2.0]], [[0.0] * 3], [[0.5, 0.0, 0.0]], SafetyFilterConfig(pad_lead=0.2),
+                        pad_acceleration=[1.0, 0.0, 0.0])  # fmt: skip
+
+
+def test_pad_lead_needs_the_pad_velocity_in_the_observations() -> None:
+    def still(obs: np.ndarray) -> np.ndarray:
+        return np.zeros((len(obs), 6))
+
+    config, offsets = SafetyFilterConfig(pad_lead=0.2), np.array([[-0.6, 0.0, 0.0], [0.6, 0.0, 0.0]])
+    with pytest.raises(ValueError, match="observe_platform_velocity"):
+        with_safety_filter(still, 2, offsets, 3.0, config, policy_dt=1 / 24)
+    act = with_safety_filter(still, 2, offsets, 3.0, config, policy_dt=1 / 24, observes_pad_velocity=True)
+    # Two drones 1 m above their goals, 1.2 m apart, over a plate braking at 1 m/s^2 along x: after 2 s the commands
+    # lead by 0.2 s x 1 m/s^2 = 0.2 m/s, action 0.2 / 3 (x only: no guard acts 1 m up, and no pair rule 1.2 m apart).
+    obs = np.zeros((1, 2, 16))
+    obs[..., 2], obs[..., 6] = 1.0, 1.0  # 1 m up, level
+    for k in range(48):
+        obs[..., 13] = 0.5 - k / 24
+        action = act(obs.reshape(1, 32))
+    np.testing.assert_allclose(action.reshape(2, 3), [[-0.2 / 3, 0.0, 0.0]] * 2, atol=1e-6)
+    with pytest.raises(ValueError, match="shield has no pad lead"):
+        SharedSwarmVecEnv(swarm_sizes=[2], swarms_per_size=1, shield=config)

@@ -35,7 +35,7 @@ import numpy as np
 from marlander_lite import task
 from marlander_lite.deploy.estimation import SwarmEstimate
 from marlander_lite.swarm.observation import shared_observations
-from marlander_lite.swarm.safety_filter import SafetyFilterConfig, filter_commands
+from marlander_lite.swarm.safety_filter import PadAcceleration, SafetyFilterConfig, filter_commands
 from marlander_lite.task import TaskConfig
 
 
@@ -80,6 +80,8 @@ class PolicyRunner:
     ) -> None:
         self.policy, self.task, self.max_speed = policy, task_config, max_speed
         self.safety_filter = safety_filter
+        self.pad_acceleration = PadAcceleration() if safety_filter is not None and safety_filter.pad_lead > 0 else None
+        """The pads' acceleration for the filter's pad lead, from the estimates' pad velocities; None without a lead."""
         contract = getattr(policy, "contract", None)
         self.neighbours: int | None = None if contract is None else contract.neighbours
         """``k`` of a shared policy (its input holds the k nearest neighbours); None for a centralised one."""
@@ -156,6 +158,7 @@ class PolicyRunner:
         if self.safety_filter is None:
             return velocity, np.zeros(len(velocity), dtype=bool)
         try:
+            lead = None if self.pad_acceleration is None else self.pad_acceleration.update(est.pad_vel, est.t)
             return filter_commands(
                 est.pos,
                 est.vel,
@@ -164,6 +167,7 @@ class PolicyRunner:
                 settled=settled,
                 rel_goal=est.pos - est.goal,
                 max_speed=self.max_speed,
+                pad_acceleration=lead,
             )
         except ValueError as error:
             raise InvalidAction(f"the safety filter failed: {error}") from None

@@ -291,6 +291,10 @@ class SafetyFilterSection:
     """Fastest descent (m/s) the policy may command a drone the filter counts as settled (within 3 cm of its goal,
     over its pad, slow); 0: no limit, as before 2026-11-26. With a slow tracker 0.8 (the default) cut touchdowns above
     0.5 m/s from 14 to 1 in 400 episodes (docs/transfer.md)."""
+    pad_lead: Annotated[Real, Field(ge=0, le=1)] = _FILTER_DEFAULTS.pad_lead
+    """Pad lead (s): every command gains this times its pad's acceleration, estimated from the pad's tracked velocity,
+    so that a lagging tracker keeps up with a pad that brakes, reverses or turns; 0: off. On moving pads 0.2 (with
+    ``cone_radius`` 0.04 and ``reaction_time`` 0.35; docs/transfer.md)."""
 
     def __post_init__(self) -> None:
         self.filter_config()  # the filter's own checks, as a ConfigError naming this section

@@ -279,7 +279,10 @@ def cell_actor(
         return act
     n = world.task.num_drones
     offsets = world.sim.platform.geometry.pad_offsets(n)
-    return with_safety_filter(act, n, offsets, world.task.max_speed, SafetyFilterConfig.from_dict(safety_filter))
+    config, task_config = SafetyFilterConfig.from_dict(safety_filter), world.task
+    return with_safety_filter(
+        act, n, offsets, task_config.max_speed, config, task_config.dt, task_config.observe_platform_velocity
+    )
 
 
 FAILURES = ("collisions", "crashes_too_fast", "crashes_off_pad", "out_of_arena", "timeouts")

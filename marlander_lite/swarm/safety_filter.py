@@ -60,6 +60,7 @@ enter the separation and wake rules, so any common frame will do.
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, fields
 from typing import Any
@@ -67,7 +68,7 @@ from typing import Any
 import numpy as np
 
 from marlander_lite.platforms import PlateGeometry
-from marlander_lite.task import EQ2_POSITION, EQ2_VELOCITY
+from marlander_lite.task import EQ2_POSITION, EQ2_VELOCITY, PLATFORM_VELOCITY
 
 _EPS = 1e-9
 PAD_RADIUS = PlateGeometry().pad_radius
@@ -139,6 +140,14 @@ class SafetyFilterConfig:
     column) and lowered no cell of another shipped filtered matrix by more than a point (``*-sink-limit``)."""
     iterations: int = 6
     """Sweeps of the cyclic projection over every drone's neighbours."""
+    pad_lead: float = 0.0
+    """``T_lead`` of the pad lead (s), 0 = off: every drone's command gains ``T_lead`` times its pad's acceleration
+    (:class:`PadAcceleration`, from the pad velocities the loop observes). A velocity tracker with time constant
+    ``T`` following a pad that accelerates at ``a`` falls ``a T`` behind in velocity, and a position loop of gain ``k``
+    leaves the drone ``a T / k`` behind the pad: 17 cm for ``a`` = 1 m/s^2 (the UR10 reversing), ``T`` = 0.2 s and
+    the policy's ``k`` of about 1.2 /s, where the misses along the moving line were measured, 11-17 cm behind
+    (docs/transfer.md). The lead cancels that lag. 0.2 s is in the moving-pad settings; it needs a policy that
+    observes the pad's velocity."""
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -209,6 +218,7 @@ def filter_commands(
     settled: np.ndarray | None = None,
     rel_goal: np.ndarray | None = None,
     max_speed: float | None = None,
+    pad_acceleration: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Velocity commands changed as little as the rules allow (module docstring).
 
@@ -222,6 +232,8 @@ def filter_commands(
         rel_goal: each drone's position minus its goal ``(..., N, 3)`` m (eq. 2's ``p``), for the split of the
             duty and the two guards; None: equal split, no guards.
         max_speed: commands are scaled down to this speed (m/s) at the end; None: no cap.
+        pad_acceleration: each drone's pad's acceleration ``(..., N, 3)`` m/s^2 (:class:`PadAcceleration`); with
+            ``config.pad_lead`` > 0 every command first gains ``pad_lead`` times it (the pad lead); None: no lead.
 
     Returns:
         ``(filtered, acted)``: commands ``(..., N, 3)`` m/s and ``(..., N)`` bool, True where a drone's command
@@ -241,6 +253,12 @@ def filter_commands(
     n = command.shape[-2]
     settled = np.zeros(command.shape[:-1], bool) if settled is None else np.asarray(settled, dtype=bool)
     goal = None if rel_goal is None else np.asarray(rel_goal, dtype=float)
+    requested = command
+    if config.pad_lead > 0 and pad_acceleration is not None:
+        lead = config.pad_lead * np.asarray(pad_acceleration, dtype=float)
+        if lead.shape != command.shape or not np.isfinite(lead).all():
+            raise ValueError(f"pad_acceleration must be a finite {command.shape} array, got shape {lead.shape}.")
+        command = command + lead  # the policy's command with the feed-forward, which every rule below starts from
     u = command.copy()
     if n >= 2:
         u = _separate(pos, vel, u, settled, goal, config)
@@ -257,7 +275,7 @@ def filter_commands(
     u = np.where(settled[..., None], command, u)
     if config.settled_sink_limit > 0:
         u[..., 2] = np.where(settled, np.maximum(u[..., 2], -config.settled_sink_limit), u[..., 2])
-    return u, np.linalg.norm(u - command, axis=-1) > 1e-9
+    return u, np.linalg.norm(u - requested, axis=-1) > 1e-9
 
 
 def _separate(
@@ -358,6 +376,8 @@ def with_safety_filter(
     pad_offsets: np.ndarray,
     max_speed: float,
     config: SafetyFilterConfig | None = None,
+    policy_dt: float | None = None,
+    observes_pad_velocity: bool = False,
 ) -> BatchAct:
     """Wrap a batch actor (centralised observations ``(E, 13 N)`` -> actions ``(E, 3 N)`` in [-1, 1]) with
     :func:`filter_commands`: actions are read as commands of ``max_speed`` m/s per unit (eq. 3).
@@ -366,6 +386,15 @@ def with_safety_filter(
     so their differences are the drones' relative positions); velocities are eq. 2's ``v``.
     """
     config = config or SafetyFilterConfig()
+    lead = None
+    if config.pad_lead > 0:
+        if not (observes_pad_velocity and policy_dt):
+            raise ValueError(
+                "pad_lead > 0 needs each pad's velocity in the observations (a policy trained with "
+                "observe_platform_velocity, as the moving preset is) and the policy period (policy_dt); "
+                "or set pad_lead=0."
+            )
+        lead, calls = PadAcceleration(), itertools.count()
     offsets = np.asarray(pad_offsets, dtype=float)
     if offsets.shape != (num_drones, 3):
         raise ValueError(f"pad_offsets must be ({num_drones}, 3), got shape {offsets.shape}.")
@@ -373,14 +402,65 @@ def with_safety_filter(
     def filtered(obs: np.ndarray) -> np.ndarray:
         obs = np.asarray(obs, dtype=float)
         command = np.asarray(act(obs), dtype=float).reshape(len(obs), num_drones, 3)
-        actions, _ = filter_actions(obs.reshape(len(obs), num_drones, -1), command, offsets, max_speed, config)
+        per_drone = obs.reshape(len(obs), num_drones, -1)
+        accel = None if lead is None else lead.update(per_drone[..., PLATFORM_VELOCITY], next(calls) * policy_dt)
+        actions, _ = filter_actions(per_drone, command, offsets, max_speed, config, accel)
         return actions.reshape(len(obs), 3 * num_drones)
 
     return filtered
 
 
+class PadAcceleration:
+    """Each pad's acceleration (m/s^2) from its velocity at successive commands, for the pad lead (``pad_lead``).
+
+    The difference of two pad velocities over the time between them, its norm clipped to ``limit``, then an
+    exponential average that takes ``smoothing`` of each new difference: motion capture's 0.02 m/s of velocity noise
+    at 24 Hz gives differences spread by 0.7 m/s^2, which would otherwise reach the commands. A difference beyond
+    twice ``limit`` is no motion a pad makes but a new episode or a glitch, and that pad's estimate restarts at
+    zero; so does every pad's after a gap longer than ``max_gap`` seconds.
+
+    Args:
+        limit: largest acceleration credited to a pad (m/s^2); the UR10 scenes reverse at 1 m/s^2.
+        smoothing: share of each new difference in the estimate, in (0, 1].
+        max_gap: longest time between two updates (s) across which a difference is taken.
+    """
+
+    def __init__(self, limit: float = 3.0, smoothing: float = 0.3, max_gap: float = 0.5) -> None:
+        if not (limit > 0 and 0 < smoothing <= 1 and max_gap > 0):
+            raise ValueError(
+                f"PadAcceleration needs limit > 0, smoothing in (0, 1] and max_gap > 0; got {limit}, {smoothing}, "
+                f"{max_gap}."
+            )
+        self.limit, self.smoothing, self.max_gap = limit, smoothing, max_gap
+        self._velocity: np.ndarray | None = None
+        self._time = -np.inf
+        self._estimate: np.ndarray | None = None
+
+    def update(self, pad_vel: np.ndarray, time: float) -> np.ndarray:
+        """The estimate after the pads' velocities ``pad_vel`` ``(..., 3)`` m/s at ``time`` (s): ``(..., 3)`` m/s^2."""
+        velocity = np.array(pad_vel, dtype=float)
+        if not np.isfinite(velocity).all():
+            raise ValueError("PadAcceleration got a NaN or infinite pad velocity; it needs finite ones.")
+        gap = time - self._time
+        if self._velocity is None or self._velocity.shape != velocity.shape or not 0 < gap <= self.max_gap:
+            self._estimate = np.zeros_like(velocity)
+        else:
+            difference = (velocity - self._velocity) / gap
+            size = np.linalg.norm(difference, axis=-1, keepdims=True)
+            difference *= np.minimum(1.0, self.limit / np.maximum(size, _EPS))
+            estimate = self._estimate + self.smoothing * (difference - self._estimate)
+            self._estimate = np.where(size > 2.0 * self.limit, 0.0, estimate)
+        self._velocity, self._time = velocity, time
+        return self._estimate
+
+
 def filter_actions(
-    obs: np.ndarray, actions: np.ndarray, pad_offsets: np.ndarray, max_speed: float, config: SafetyFilterConfig
+    obs: np.ndarray,
+    actions: np.ndarray,
+    pad_offsets: np.ndarray,
+    max_speed: float,
+    config: SafetyFilterConfig,
+    pad_acceleration: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`filter_commands` on eq. 3 actions, with positions and velocities read from eq. 2 observations.
 
@@ -404,5 +484,6 @@ def filter_actions(
         settled=settled_drones(rel_goal, vel, config),
         rel_goal=rel_goal,
         max_speed=max_speed,
+        pad_acceleration=pad_acceleration,
     )
     return np.clip(u / max_speed, -1.0, 1.0), np.linalg.norm(u - command, axis=-1)

@@ -115,6 +115,10 @@ class SharedSwarmVecEnv(InProcessVecEnv):
         if shield_penalty and shield is None:
             raise ValueError("shield_penalty needs a shield: pass shield=SafetyFilterConfig() (or its dict).")
         self.shield = SafetyFilterConfig.from_dict(shield) if isinstance(shield, dict) else shield
+        if self.shield is not None and self.shield.pad_lead > 0:
+            raise ValueError(
+                "The training shield has no pad lead (the shared policy sees no pad velocity); set pad_lead=0."
+            )
         self.shield_penalty = float(shield_penalty)
         sizes = tuple(swarm_sizes)
         if not sizes or any(isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 1 for n in sizes):
