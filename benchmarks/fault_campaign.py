@@ -45,6 +45,7 @@ from marlander_lite.deploy.config import EXAMPLE_CONFIG, SIMULATOR_KINDS, LabCon
 from marlander_lite.deploy.flight_log import read_flight_log
 from marlander_lite.deploy.rehearsal import FAULT_KINDS, FaultSpec, RehearsalResult, rehearse
 from marlander_lite.policy_file import load_policy
+from marlander_lite.swarm.safety_filter import parse_settings
 
 ROOT = Path(__file__).resolve().parents[1]
 PLATFORMS = {"floor": "static-floor", "UR10": "static-elevated", "moving arc": "moving-arc"}
@@ -171,11 +172,14 @@ def run_campaign(
     cases: Iterable[str] = CASES,
     platforms: dict[str, str] = PLATFORMS,
     progress: Callable[[str], None] | None = None,
+    moving_filter: dict[str, float] | None = None,
 ) -> Campaign:
     """Rehearse every case on every platform for every seed; returns the totals (see the module docstring).
 
     The fault strikes (or the SIGTERM is sent) between 0.1 and 0.6 s after the policy took over, drawn
     from the seed: at the fastest speed the drones may be down a second after the policy starts.
+    ``moving_filter``: changes to the lab's safety filter on the moving platforms (e.g. the lab guide's moving-pad
+    settings); None: the example lab's filter everywhere.
     """
     campaign, start = Campaign(), time.perf_counter()
     seeds, cases = list(seeds), list(cases)
@@ -184,6 +188,8 @@ def run_campaign(
         for name, platform in platforms.items():
             lab = campaign_lab(platform, max_time_s)
             kind = "moving" if platform.startswith("moving") else "static"
+            if kind == "moving" and moving_filter:
+                lab = lab.replace(safety_filter=dataclasses.replace(lab.safety_filter, **moving_filter))
             if kind not in policies:
                 policies[kind] = load_policy(POLICIES[kind], lab.task_config(kind == "moving"))
             for seed in seeds:
@@ -214,15 +220,38 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", type=int, default=20, help="seeds per fault and platform (default 20)")
     parser.add_argument("--simulator", choices=SIMULATOR_KINDS, default="crazyflie")
     parser.add_argument("--max-time", type=float, default=12.0, help="simulated seconds per rehearsal (default 12)")
+    parser.add_argument(
+        "--platforms", default=",".join(PLATFORMS), help=f"comma-separated, from: {', '.join(PLATFORMS)} (default all)"
+    )
+    parser.add_argument(
+        "--moving-filter",
+        default="",
+        metavar="KEY=VALUE,...",
+        help="safety filter changes on the moving platforms, e.g. cone_radius=0.04,reaction_time=0.35,pad_lead=0.2",
+    )
     args = parser.parse_args(argv)
+    names = [name.strip() for name in args.platforms.split(",")]
+    unknown = sorted(set(names) - set(PLATFORMS))
+    if unknown:
+        parser.error(f"unknown platform(s) {unknown}; allowed: {', '.join(PLATFORMS)}")
+    try:
+        moving_filter = parse_settings(args.moving_filter)
+    except ValueError as error:
+        parser.error(f"--moving-filter: {error}")
     lab = campaign_lab("static-floor", args.max_time)
     print(
-        f"fault campaign: {len(CASES)} cases ({', '.join(CASES)}) x {len(PLATFORMS)} platforms "
-        f"({', '.join(PLATFORMS)}) x {args.seeds} seeds, {args.simulator}, max_speed {lab.limits.max_speed} m/s",
+        f"fault campaign: {len(CASES)} cases ({', '.join(CASES)}) x {len(names)} platforms "
+        f"({', '.join(names)}) x {args.seeds} seeds, {args.simulator}, max_speed {lab.limits.max_speed} m/s"
+        + (f", moving-platform filter {args.moving_filter}" if moving_filter else ""),
         flush=True,
     )
     campaign = run_campaign(
-        range(args.seeds), simulator=args.simulator, max_time_s=args.max_time, progress=lambda s: print(s, flush=True)
+        range(args.seeds),
+        simulator=args.simulator,
+        max_time_s=args.max_time,
+        platforms={name: PLATFORMS[name] for name in names},
+        progress=lambda s: print(s, flush=True),
+        moving_filter=moving_filter,
     )
     print(campaign.report())
     return 0 if campaign.ok else 1

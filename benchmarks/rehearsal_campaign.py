@@ -13,17 +13,26 @@ Run::
 
     python benchmarks/rehearsal_campaign.py --config marlander_lite/deploy/example_lab_8.yaml \\
         --policy data/policies/shared-quick-local.safetensors --seeds 0-19 [--simulator pointmass] [--controller pid]
+
+The config's simulation platform, its take-off height and its safety filter can be changed on the command line, e.g.
+the plate shuttling along a line at 0.4 m/s with the lab guide's moving-pad settings::
+
+    python benchmarks/rehearsal_campaign.py --config marlander_lite/deploy/example_lab.yaml \\
+        --policy data/policies/moving-smooth-16m.safetensors --seeds 0-9 --platform moving-linear \\
+        --platform-speed 0.4 --takeoff-height 1.4 --filter-settings cone_radius=0.04,reaction_time=0.35,pad_lead=0.2
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 
 import numpy as np
 
 from marlander_lite.deploy.config import load_lab_config
 from marlander_lite.deploy.rehearsal.run import rehearse
+from marlander_lite.swarm.safety_filter import parse_settings
 
 
 def seed_range(text: str) -> list[int]:
@@ -39,8 +48,21 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seeds", default="0-19", help="seed range, e.g. 0-19")
     parser.add_argument("--simulator", default=None, choices=("crazyflie", "pointmass"), help="default: the lab's")
     parser.add_argument("--controller", default=None, help="PyBullet tracker (firmware, pid); default: firmware")
+    parser.add_argument("--platform", default=None, help="simulation.platform instead of the config's")
+    parser.add_argument("--platform-speed", type=float, default=None, help="simulation.platform_speed (m/s)")
+    parser.add_argument("--takeoff-height", type=float, default=None, help="limits.takeoff_height (m)")
+    parser.add_argument(
+        "--filter-settings", default="", metavar="KEY=VALUE,...", help="safety_filter keys instead of the config's"
+    )
     args = parser.parse_args(argv)
     lab = load_lab_config(args.config)
+    simulation = {"platform": args.platform, "platform_speed": args.platform_speed}
+    lab = lab.replace(
+        simulation=dataclasses.replace(lab.simulation, **{k: v for k, v in simulation.items() if v is not None}),
+        safety_filter=dataclasses.replace(lab.safety_filter, **parse_settings(args.filter_settings)),
+    )
+    if args.takeoff_height is not None:
+        lab = lab.replace(limits=dataclasses.replace(lab.limits, takeoff_height=args.takeoff_height))
     on_pad = all_down = safe = 0
     drones, errors, closest = 0, [], math.inf
     for seed in seed_range(args.seeds):

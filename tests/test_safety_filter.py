@@ -9,8 +9,8 @@ import pytest
 
 from marlander_lite.platforms import PlatformConfig
 from marlander_lite.swarm.evaluation import evaluate_cell
+from marlander_lite.swarm.pad_acceleration import PadAcceleration
 from marlander_lite.swarm.safety_filter import (
-    PadAcceleration,
     SafetyFilterConfig,
     filter_commands,
     parse_settings,

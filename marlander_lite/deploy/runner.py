@@ -35,7 +35,8 @@ import numpy as np
 from marlander_lite import task
 from marlander_lite.deploy.estimation import SwarmEstimate
 from marlander_lite.swarm.observation import shared_observations
-from marlander_lite.swarm.safety_filter import PadAcceleration, SafetyFilterConfig, filter_commands
+from marlander_lite.swarm.pad_acceleration import PadAcceleration
+from marlander_lite.swarm.safety_filter import SafetyFilterConfig, filter_commands
 from marlander_lite.task import TaskConfig
 
 

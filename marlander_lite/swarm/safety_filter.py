@@ -43,6 +43,10 @@ low approach). Below that surface its descent is braked at rate ``gamma``; it is
 ``r_0`` = 5 mm the surface is almost a cone whose tip is the goal: the drone centres itself over its pad
 as it comes down.
 
+**Pad lead** (``pad_lead``, off by default). On a moving pad every command first gains ``T_lead`` times the pad's
+acceleration, estimated from the pad velocities the loop observes (:class:`PadAcceleration`): a velocity tracker
+with time constant ``T`` trails a pad that brakes or turns, and the lead cancels that lag when ``T_lead = T``.
+
 **Centring.** Over its pad (within the pad radius) and below ``h_max``, a drone's horizontal command gains
 ``-k_c`` times its horizontal offset from the goal. A policy that hovers a few centimetres off its pad centre
 would otherwise wait at the approach guard until the flight time ran out; with the rule it is drawn to the
@@ -68,6 +72,7 @@ from typing import Any
 import numpy as np
 
 from marlander_lite.platforms import PlateGeometry
+from marlander_lite.swarm.pad_acceleration import PadAcceleration
 from marlander_lite.task import EQ2_POSITION, EQ2_VELOCITY, PLATFORM_VELOCITY
 
 _EPS = 1e-9
@@ -384,6 +389,10 @@ def with_safety_filter(
 
     Positions are eq. 2's goal-relative ``p`` plus each drone's pad offset ``(N, 3)`` m (the plate never yaws,
     so their differences are the drones' relative positions); velocities are eq. 2's ``v``.
+
+    With ``config.pad_lead`` > 0 the wrapper estimates each pad's acceleration (:class:`PadAcceleration`) from the
+    pad velocities in the observations, which needs ``observes_pad_velocity`` (the policy's
+    ``TaskConfig.observe_platform_velocity``) and the time between two calls, ``policy_dt`` (s).
     """
     config = config or SafetyFilterConfig()
     lead = None
@@ -408,50 +417,6 @@ def with_safety_filter(
         return actions.reshape(len(obs), 3 * num_drones)
 
     return filtered
-
-
-class PadAcceleration:
-    """Each pad's acceleration (m/s^2) from its velocity at successive commands, for the pad lead (``pad_lead``).
-
-    The difference of two pad velocities over the time between them, its norm clipped to ``limit``, then an
-    exponential average that takes ``smoothing`` of each new difference: motion capture's 0.02 m/s of velocity noise
-    at 24 Hz gives differences spread by 0.7 m/s^2, which would otherwise reach the commands. A difference beyond
-    twice ``limit`` is no motion a pad makes but a new episode or a glitch, and that pad's estimate restarts at
-    zero; so does every pad's after a gap longer than ``max_gap`` seconds.
-
-    Args:
-        limit: largest acceleration credited to a pad (m/s^2); the UR10 scenes reverse at 1 m/s^2.
-        smoothing: share of each new difference in the estimate, in (0, 1].
-        max_gap: longest time between two updates (s) across which a difference is taken.
-    """
-
-    def __init__(self, limit: float = 3.0, smoothing: float = 0.3, max_gap: float = 0.5) -> None:
-        if not (limit > 0 and 0 < smoothing <= 1 and max_gap > 0):
-            raise ValueError(
-                f"PadAcceleration needs limit > 0, smoothing in (0, 1] and max_gap > 0; got {limit}, {smoothing}, "
-                f"{max_gap}."
-            )
-        self.limit, self.smoothing, self.max_gap = limit, smoothing, max_gap
-        self._velocity: np.ndarray | None = None
-        self._time = -np.inf
-        self._estimate: np.ndarray | None = None
-
-    def update(self, pad_vel: np.ndarray, time: float) -> np.ndarray:
-        """The estimate after the pads' velocities ``pad_vel`` ``(..., 3)`` m/s at ``time`` (s): ``(..., 3)`` m/s^2."""
-        velocity = np.array(pad_vel, dtype=float)
-        if not np.isfinite(velocity).all():
-            raise ValueError("PadAcceleration got a NaN or infinite pad velocity; it needs finite ones.")
-        gap = time - self._time
-        if self._velocity is None or self._velocity.shape != velocity.shape or not 0 < gap <= self.max_gap:
-            self._estimate = np.zeros_like(velocity)
-        else:
-            difference = (velocity - self._velocity) / gap
-            size = np.linalg.norm(difference, axis=-1, keepdims=True)
-            difference *= np.minimum(1.0, self.limit / np.maximum(size, _EPS))
-            estimate = self._estimate + self.smoothing * (difference - self._estimate)
-            self._estimate = np.where(size > 2.0 * self.limit, 0.0, estimate)
-        self._velocity, self._time = velocity, time
-        return self._estimate
 
 
 def filter_actions(
