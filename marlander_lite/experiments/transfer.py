@@ -281,7 +281,13 @@ def cell_actor(
     offsets = world.sim.platform.geometry.pad_offsets(n)
     config, task_config = SafetyFilterConfig.from_dict(safety_filter), world.task
     return with_safety_filter(
-        act, n, offsets, task_config.max_speed, config, task_config.dt, task_config.observe_platform_velocity
+        act,
+        n,
+        offsets,
+        task_config.max_speed,
+        config,
+        policy_dt=task_config.dt,
+        observes_pad_velocity=task_config.observe_platform_velocity,
     )
 
 

@@ -184,8 +184,19 @@ def actor_factory(
     ``filter_settings``: changes to :class:`SafetyFilterConfig`'s defaults for the ``*-filter`` controllers.
     """
     guard = SafetyFilterConfig.from_dict(filter_settings or {})
-    lead = (task.dt, task.observe_platform_velocity)  # what the filter's pad lead needs, if it is on
     offsets = platform.geometry.pad_offsets(task.num_drones)
+
+    def filtered(act: BatchAct) -> BatchAct:
+        return with_safety_filter(
+            act,
+            task.num_drones,
+            offsets,
+            task.max_speed,
+            guard,
+            policy_dt=task.dt,
+            observes_pad_velocity=task.observe_platform_velocity,
+        )
+
     if controller == "shared":
         if policy_path is None:
             raise ValueError("The shared controller needs its policy file (policy_path).")
@@ -200,13 +211,13 @@ def actor_factory(
         if policy_path is None:
             raise ValueError("The shared-filter controller needs its policy file (policy_path).")
         guarded = SharedPolicy(policy_path, task, platform.geometry)
-        return lambda _ids: with_safety_filter(guarded.act, task.num_drones, offsets, task.max_speed, guard, *lead)
+        return lambda _ids: filtered(guarded.act)
     if controller in ("centralised", "centralised-filter"):
         if policy_path is None:
             raise ValueError(f"The {controller} controller needs its policy file (policy_path).")
         central = load_policy(policy_path, task)  # refuses a policy trained for another N
         if controller == "centralised-filter":
-            return lambda _ids: with_safety_filter(central.act, task.num_drones, offsets, task.max_speed, guard, *lead)
+            return lambda _ids: filtered(central.act)
         return lambda _ids: central.act
     if controller == "baseline":
         return lambda _ids: BatchOfControllers(lambda: PIDAPFController(task, geometry=platform.geometry), num_envs)
