@@ -21,7 +21,8 @@ from marlander_lite.swarm.vec_env import SharedSwarmVecEnv
 
 SHARED = "data/policies/shared-quick-local.safetensors"
 MOVING = "data/policies/moving-smooth-16m.safetensors"
-MOVING_PAD_SETTINGS = {"cone_radius": 0.04, "reaction_time": 0.35}
+MOVING_PAD_SETTINGS = {"cone_radius": 0.04, "reaction_time": 0.35, "pad_lead": 0.2}
+"""The lab guide's filter settings for moving pads."""
 ONLY_SEPARATION = SafetyFilterConfig(sidestep=0.0, wake_slope=0.0)
 
 
@@ -231,7 +232,8 @@ def test_settings_are_read_as_a_command_line_gives_them() -> None:
 
 
 def test_centralised_policy_through_the_filter_follows_a_fast_pad() -> None:
-    # measured on 200 trials, seed 0, UR10 arc at 1.0 m/s: 93.0 % through the filter, 27.0 % alone
+    # measured on 200 trials, seed 0, UR10 arc at 1.0 m/s: 96.0 % through the filter (93.0 % without the pad lead),
+    # 27.0 % alone (data/results/scaling/fast_moving_smooth_filter_pad_lead.md)
     fast_arc = PlatformConfig(kind="moving-arc", speed=1.0)
     alone = evaluate_cell("centralised", 2, 40, seed=0, policy_path=MOVING, num_envs=40, platform=fast_arc)
     guarded = evaluate_cell(
