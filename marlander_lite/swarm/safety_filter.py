@@ -151,8 +151,9 @@ class SafetyFilterConfig:
     ``T`` following a pad that accelerates at ``a`` falls ``a T`` behind in velocity, and a position loop of gain ``k``
     leaves the drone ``a T / k`` behind the pad: 17 cm for ``a`` = 1 m/s^2 (the UR10 reversing), ``T`` = 0.2 s and
     the policy's ``k`` of about 1.2 /s, where the misses along the moving line were measured, 11-17 cm behind
-    (docs/transfer.md). The lead cancels that lag. 0.2 s is in the moving-pad settings; it needs a policy that
-    observes the pad's velocity."""
+    (docs/transfer.md). The lead cancels that lag. 0.2 s is in the moving-pad settings. In the simulators' filter
+    (:func:`with_safety_filter`) it needs a policy that observes the pad's velocity; the deployment runner takes the
+    pad's velocity from motion capture, whatever the policy."""
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -434,6 +435,9 @@ def filter_actions(
         actions: normalised actions ``(..., N, 3)``; entries beyond [-1, 1] are clipped first, as eq. 3 does.
         pad_offsets: each drone's pad offset on the plate ``(N, 3)`` m: ``p + offset`` places the drones in one frame.
         max_speed: eq. 3's speed of action 1 (m/s).
+        config: the filter's settings.
+        pad_acceleration: each drone's pad's acceleration ``(..., N, 3)`` m/s^2 for the pad lead (``config.pad_lead``);
+            None: no lead.
 
     Returns:
         ``(filtered, correction)``: actions ``(..., N, 3)`` in [-1, 1], and how far the filter moved each drone's
