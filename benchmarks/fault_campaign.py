@@ -189,7 +189,7 @@ def run_campaign(
             lab = campaign_lab(platform, max_time_s)
             kind = "moving" if platform.startswith("moving") else "static"
             if kind == "moving" and moving_filter:
-                lab = lab.replace(safety_filter=dataclasses.replace(lab.safety_filter, **moving_filter))
+                lab = lab.replace(safety_filter=lab.safety_filter.with_settings(moving_filter))
             if kind not in policies:
                 policies[kind] = load_policy(POLICIES[kind], lab.task_config(kind == "moving"))
             for seed in seeds:
@@ -236,7 +236,10 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"unknown platform(s) {unknown}; allowed: {', '.join(PLATFORMS)}")
     try:
         moving_filter = parse_settings(args.moving_filter)
-    except ValueError as error:
+        campaign_lab("moving-arc", args.max_time).safety_filter.with_settings(
+            moving_filter
+        )  # refused before any flight
+    except ValueError as error:  # ConfigError is one
         parser.error(f"--moving-filter: {error}")
     lab = campaign_lab("static-floor", args.max_time)
     print(

@@ -57,9 +57,13 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     lab = load_lab_config(args.config)
     simulation = {"platform": args.platform, "platform_speed": args.platform_speed}
+    try:
+        safety_filter = lab.safety_filter.with_settings(parse_settings(args.filter_settings))
+    except ValueError as error:  # ConfigError is one
+        parser.error(f"--filter-settings: {error}")
     lab = lab.replace(
         simulation=dataclasses.replace(lab.simulation, **{k: v for k, v in simulation.items() if v is not None}),
-        safety_filter=dataclasses.replace(lab.safety_filter, **parse_settings(args.filter_settings)),
+        safety_filter=safety_filter,
     )
     if args.takeoff_height is not None:
         lab = lab.replace(limits=dataclasses.replace(lab.limits, takeoff_height=args.takeoff_height))

@@ -164,6 +164,18 @@ def test_mistakes_in_the_section_are_refused_naming_the_key(example, values, mes
         LabConfig.from_dict(example)
 
 
+def test_settings_from_a_command_line_are_checked_as_the_loader_checks_them(example):
+    section = LabConfig.from_dict(example).safety_filter
+    assert section.with_settings({}) == section
+    assert section.with_settings({"pad_lead": 0.2, "cone_radius": 0.04}).filter_config() == SafetyFilterConfig(
+        pad_lead=0.2, cone_radius=0.04
+    )
+    with pytest.raises(ConfigError, match=r"iterations: unknown key; allowed: .*pad_lead"):
+        section.with_settings({"iterations": 3})  # a filter setting the lab config does not expose
+    with pytest.raises(ConfigError, match="pad_lead: Input should be less than or equal to 1"):
+        section.with_settings({"pad_lead": 5.0})
+
+
 def test_a_mistake_in_a_file_names_the_file_and_the_key(tmp_path, example):
     example["safety_filter"] = {"min_distance": -0.1}
     path = tmp_path / "lab.yaml"

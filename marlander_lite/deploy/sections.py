@@ -28,6 +28,7 @@ from marlander_lite.deploy.schema import (
     Uri,
     Whole,
     check,
+    validate,
 )
 from marlander_lite.platforms import PLATFORM_KINDS, PlatformKind
 from marlander_lite.simulators import SIMULATORS, SimulatorName
@@ -298,6 +299,11 @@ class SafetyFilterSection:
 
     def __post_init__(self) -> None:
         self.filter_config()  # the filter's own checks, as a ConfigError naming this section
+
+    def with_settings(self, settings: dict[str, Any]) -> SafetyFilterSection:
+        """These keys with ``settings`` changed (e.g. a command line's, ``safety_filter.parse_settings``), checked as
+        the config loader checks them: an unknown key or a value out of range raises :class:`ConfigError`."""
+        return validate(SafetyFilterSection, {f.name: getattr(self, f.name) for f in fields(self)} | settings)
 
     def filter_config(self) -> SafetyFilterConfig:
         """The :class:`SafetyFilterConfig` these keys set (its defaults for the rest); :class:`ConfigError` if the
