@@ -120,6 +120,7 @@ def test_the_keys_override_the_filter_s_settings(example):
         "reaction_time": 0.3,
         "cone_radius": 0.04,
         "settled_sink_limit": 0.8,
+        "latency_compensation": 0.12,
     }
     config = LabConfig.from_dict(example).safety_filter.filter_config()
     expected = dataclasses.replace(
@@ -130,6 +131,7 @@ def test_the_keys_override_the_filter_s_settings(example):
         reaction_time=0.3,
         cone_radius=0.04,
         settled_sink_limit=0.8,
+        latency_compensation=0.12,
     )
     assert config == expected
 
@@ -143,6 +145,10 @@ def test_the_keys_override_the_filter_s_settings(example):
         ),
         ({"min_distance": -0.1}, r"^safety_filter.min_distance: Input should be greater than 0 \(got -0.1\)"),
         ({"cone_slope": -1.0}, r"^safety_filter.cone_slope: Input should be greater than or equal to 0 \(got -1.0\)"),
+        (
+            {"latency_compensation": 0.8},
+            r"^safety_filter.latency_compensation: Input should be less than or equal to 0.5 \(got 0.8\)",
+        ),
         ({"cone_radius": 0.5}, r"^safety_filter.cone_radius: Input should be less than or equal to 0.1 \(got 0.5\)"),
         (
             {"settled_sink_limit": -0.8},
@@ -285,6 +291,27 @@ def test_the_runner_leads_a_braking_pad_by_the_pad_lead():
     runner = PolicyRunner(HeadOn(), TaskConfig(num_drones=2), 1.0, safety_filter=SafetyFilterConfig())
     u, changed = runner.filter_velocity(still, moving, idle)
     assert runner.pad_acceleration is None and not changed.any() and not u.any()
+
+
+def test_the_runner_compensates_latency_on_the_estimate_it_predicts():
+    """With ``latency_compensation`` ``L`` the policy reads and the filter guards the estimate ``L`` ahead. By hand,
+    ``L`` = 0.05 s: a drone 0.5 m above its goal sinking at 1 m/s over a pad moving at 0.4 m/s along x has ``p`` =
+    (0, 0, 0.5) now and (-0.02, 0, 0.45) ahead; the descent guard then lets it sink at most
+    sqrt(0.3^2 + 2 x 1.5 x 0.45) = 1.2 m/s (sqrt(0.3^2 + 2 x 1.5 x 0.5) = 1.261 m/s on the estimate as measured)."""
+    goals, up = np.array([[-0.6, 0.0, 0.0], [0.6, 0.0, 0.0]]), np.array([0.0, 0.0, 0.5])
+    est = dataclasses.replace(
+        estimate(goals + up, vel=np.tile([0.0, 0.0, -1.0], (2, 1)), goals=goals),
+        pad_vel=np.tile([0.4, 0.0, 0.0], (2, 1)),
+    )
+    down, idle = np.tile([0.0, 0.0, -1.5], (2, 1)), np.zeros(2, dtype=bool)
+    for compensation, p, sink in ((0.0, [0.0, 0.0, 0.5], np.sqrt(1.59)), (0.05, [-0.02, 0.0, 0.45], 1.2)):
+        runner = PolicyRunner(
+            HeadOn(), TaskConfig(num_drones=2), 2.0, SafetyFilterConfig(latency_compensation=compensation)
+        )
+        np.testing.assert_allclose(runner.observe(est)[:, :3], [p, p], atol=1e-12)
+        u, _ = runner.filter_velocity(down, est, idle)
+        np.testing.assert_allclose(u[:, 2], [-sink, -sink], atol=1e-9)
+    np.testing.assert_array_equal(est.pos, goals + up)  # the measured estimate is kept
 
 
 # ------------------------------------------------------------------ the mission

@@ -14,6 +14,7 @@ from marlander_lite.swarm.safety_filter import (
     SafetyFilterConfig,
     filter_commands,
     parse_settings,
+    predict_observations,
     settled_drones,
     with_safety_filter,
 )
@@ -366,3 +367,48 @@ def test_pad_lead_needs_the_pad_velocity_in_the_observations() -> None:
     np.testing.assert_allclose(action.reshape(2, 3), [[-0.2 / 3, 0.0, 0.0]] * 2, atol=1e-6)
     with pytest.raises(ValueError, match="shield has no pad lead"):
         SharedSwarmVecEnv(swarm_sizes=[2], swarms_per_size=1, shield=config)
+
+
+def test_predict_observations_moves_p_by_v_times_the_lead() -> None:
+    """``p`` is position minus goal and ``v`` velocity relative to the pad, so ``L`` s ahead ``p`` is ``p + v L``; the
+    attitude, the velocities and the extras stay as they are. By hand: ``(1, 0, 2) + 0.1 (-0.5, 0.2, -1)``."""
+    obs = np.zeros((1, 2, 16))
+    obs[0, 0, :3], obs[0, 0, 6], obs[0, 0, 7:10], obs[0, 0, 13:16] = [1.0, 0.0, 2.0], 1.0, [-0.5, 0.2, -1.0], 0.4
+    ahead = predict_observations(obs, 0.1)
+    np.testing.assert_allclose(ahead[0, 0, :3], [0.95, 0.02, 1.9])
+    np.testing.assert_array_equal(ahead[..., 3:], obs[..., 3:])
+    np.testing.assert_array_equal(ahead[0, 1], obs[0, 1])  # at rest: where it is
+    np.testing.assert_array_equal(predict_observations(obs, 0.0), obs)
+    assert obs[0, 0, 0] == 1.0  # a new array: the caller's observation is kept
+    with pytest.raises(ValueError, match=r"latency_compensation must be within \[0, 0.5\] s"):
+        SafetyFilterConfig(latency_compensation=0.6)
+    with pytest.raises(ValueError, match="shield has no latency compensation"):
+        SharedSwarmVecEnv(swarm_sizes=[2], swarms_per_size=1, shield=SafetyFilterConfig(latency_compensation=0.1))
+
+
+def test_latency_compensation_brakes_a_late_drone_before_its_pad() -> None:
+    """A drone 1 m above its goal whose policy keeps asking for 1.5 m/s down, through the descent guard (brake to
+    0.3 m/s at 1.5 m/s^2), with a first-order tracker (0.1 s) and commands that act 80 ms after the pose they were
+    computed from. The guard computed on the pose as measured starts braking 80 ms late: the drone touches down faster
+    than the task's 0.5 m/s. Computed on the pose predicted 80 ms ahead, it brakes in time, to at most 0.3 m/s."""
+
+    def touchdown_speed(compensation: float, delay: float = 0.08) -> float:
+        config = SafetyFilterConfig(latency_compensation=compensation)
+        act = with_safety_filter(lambda o: np.array([[0.0, 0.0, -1.0]]), 1, np.zeros((1, 3)), 1.5, config)
+        physics_hz, policy_every, z, v, command = 240, 10, 1.0, 0.0, 0.0
+        in_flight = [0.0] * round(delay * physics_hz)
+        for step in range(physics_hz * 10):
+            if step % policy_every == 0:
+                obs = np.zeros((1, 13))
+                obs[0, 2], obs[0, 6], obs[0, 9] = z, 1.0, v
+                command = 1.5 * act(obs)[0, 2]
+            in_flight.append(command)
+            v += (in_flight.pop(0) - v) / (0.1 * physics_hz)
+            z += v / physics_hz
+            if z <= 0.0:
+                return -v
+        raise AssertionError("the drone never came down")
+
+    assert touchdown_speed(0.0) > 0.5
+    assert touchdown_speed(0.08) <= 0.3
+    assert touchdown_speed(0.0, delay=0.0) <= 0.3  # without the delay the guard alone suffices

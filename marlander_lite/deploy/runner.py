@@ -23,11 +23,14 @@ filter of :mod:`marlander_lite.swarm.safety_filter` (config section ``safety_fil
 simulators' ``shared-filter`` controller uses: each command changes as little as needed for every pair
 of drones to keep ``n . (u_i - u_j) >= -gamma (d - d_s)`` (they stay ``d_s`` apart), for no drone to be
 pushed down, and for each to descend no faster than it can brake to ``v_td`` and not below a cone
-beside its pad; the result is speed-clamped again.
+beside its pad; the result is speed-clamped again. With the filter's ``latency_compensation`` ``L`` the policy and
+the filter's guards read the estimate predicted ``L`` ahead (:meth:`PolicyRunner.ahead`), where each drone and pad
+will be when the command acts; the separation rules and the mission's safety rules keep the estimate as measured.
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Protocol
 
 import numpy as np
@@ -97,9 +100,31 @@ class PolicyRunner:
         """Whether the policy is shared (one network per drone, any N) rather than centralised."""
         return self.neighbours is not None
 
+    @property
+    def latency_compensation(self) -> float:
+        """``L`` (s) of the filter's latency compensation; 0 without a filter."""
+        return 0.0 if self.safety_filter is None else self.safety_filter.latency_compensation
+
+    def ahead(self, est: SwarmEstimate) -> SwarmEstimate:
+        """The estimate predicted :attr:`latency_compensation` ahead at constant velocity: every drone at
+        ``pos + vel L``, every pad (and goal) at ``pad_pos + pad_vel L``; ``est`` itself without compensation.
+        Eq. 2's ``p`` then moves by ``(vel - pad_vel) L``, as :func:`~marlander_lite.swarm.safety_filter.
+        predict_observations` moves it in the simulators."""
+        lead = self.latency_compensation
+        if not lead:
+            return est
+        return replace(
+            est,
+            t=est.t + lead,
+            pos=est.pos + lead * est.vel,
+            pad_pos=est.pad_pos + lead * est.pad_vel,
+            goal=est.goal + lead * est.pad_vel,
+        )
+
     def observe(self, est: SwarmEstimate) -> np.ndarray:
         """Eq. 2 for every drone, ``(N, 13)``, with the extras the policy asks for (``(N, 16)`` or ``(N, 19)``: the
-        platform velocity, the previous command)."""
+        platform velocity, the previous command), from the estimate predicted :attr:`latency_compensation` ahead."""
+        est = self.ahead(est)
         pad_vel = est.pad_vel if self.task.observe_platform_velocity else None
         command = self.previous_command if self.task.observe_previous_command else None
         return task.observe(est.pos - est.goal, est.quat, est.vel - est.pad_vel, est.ang_vel, pad_vel, command)
@@ -147,9 +172,10 @@ class PolicyRunner:
 
         Args:
             velocity: the policy's clamped velocities (:meth:`act`), world frame (m/s).
-            est: this tick's estimate: the filter reads the drones' positions ``est.pos`` and velocities
-                ``est.vel`` (world frame; only their differences keep drones apart) and eq. 2's ``p = pos - goal``
-                (for the descent and approach guards, and to let the drone nearer its pad keep its line).
+            est: this tick's estimate, as measured: the filter reads the drones' positions ``est.pos`` and
+                velocities ``est.vel`` (world frame; only their differences keep drones apart) and eq. 2's
+                ``p = pos - goal``, predicted :attr:`latency_compensation` ahead (:meth:`ahead`; for the guards, and to
+                let the drone nearer its pad keep its line).
             settled: ``(N,)`` bool, drones that will not move (landed, landing, down): the filter leaves their
                 setpoints alone and their neighbours keep clear of them alone.
 
@@ -158,6 +184,7 @@ class PolicyRunner:
         """
         if self.safety_filter is None:
             return velocity, np.zeros(len(velocity), dtype=bool)
+        ahead = self.ahead(est)
         try:
             lead = None if self.pad_acceleration is None else self.pad_acceleration.update(est.pad_vel, est.t)
             return filter_commands(
@@ -166,7 +193,7 @@ class PolicyRunner:
                 velocity,
                 self.safety_filter,
                 settled=settled,
-                rel_goal=est.pos - est.goal,
+                rel_goal=ahead.pos - ahead.goal,
                 max_speed=self.max_speed,
                 pad_acceleration=lead,
             )

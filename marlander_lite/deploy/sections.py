@@ -296,6 +296,10 @@ class SafetyFilterSection:
     """Pad lead (s): every command gains this times its pad's acceleration, estimated from the pad's tracked velocity,
     so that a lagging tracker keeps up with a pad that brakes, reverses or turns; 0: off. On moving pads 0.2 (with
     ``cone_radius`` 0.04 and ``reaction_time`` 0.35; docs/transfer.md)."""
+    latency_compensation: Annotated[Real, Field(ge=0, le=0.5)] = _FILTER_DEFAULTS.latency_compensation
+    """Latency compensation (s): the policy and the filter act on each drone and pad predicted this far ahead at
+    their tracked velocities, where they will be when the command acts; 0: off. Set it to the radio and tracker delay
+    the policy was not trained with (docs/transfer.md, "Latency compensation")."""
 
     def __post_init__(self) -> None:
         self.filter_config()  # the filter's own checks, as a ConfigError naming this section

@@ -47,6 +47,13 @@ as it comes down.
 acceleration, estimated from the pad velocities the loop observes (:class:`PadAcceleration`): a velocity tracker
 with time constant ``T`` trails a pad that brakes or turns, and the lead cancels that lag when ``T_lead = T``.
 
+**Latency compensation** (``latency_compensation``, off by default). A command computed from a pose ``L`` seconds
+old acts ``L`` seconds late. With ``L`` set, the policy and the guards (descent, approach, centring) read each drone's
+observation predicted ``L`` ahead at its present velocity (eq. 2's ``p + v L``, :func:`predict_observations`), as a
+Smith predictor acts on the output predicted past a known delay [Smith1957] (docs/references.md), here from the
+measured velocity, not a model. The separation and wake rules keep the measured positions: they predict ``tau``
+ahead on their own, and predicting from the predicted positions too added collisions (docs/transfer.md).
+
 **Centring.** Over its pad (within the pad radius) and below ``h_max``, a drone's horizontal command gains
 ``-k_c`` times its horizontal offset from the goal. A policy that hovers a few centimetres off its pad centre
 would otherwise wait at the approach guard until the flight time ran out; with the rule it is drawn to the
@@ -155,6 +162,13 @@ class SafetyFilterConfig:
     (:func:`with_safety_filter`) it needs a policy that observes the pad's velocity; the deployment runner takes the
     pad's velocity from motion capture, whatever the policy."""
 
+    latency_compensation: float = 0.0
+    """``L`` of the latency compensation (s), 0 = off: the policy and the guards act on each drone's state predicted
+    ``L`` ahead at its present velocity (eq. 2's ``p + v L``, :func:`predict_observations`), where it will be when
+    this command starts to act; the separation rules keep ``reaction_time``. Set it to the command latency beyond what the policy was trained with (the radio,
+    a slow link): a command the loop computes from a pose ``L`` old is late by ``L``, and a drone it tells to brake
+    over its pad has already come ``v L`` lower. At most 0.5 s."""
+
     def __post_init__(self) -> None:
         for f in fields(self):
             value = getattr(self, f.name)
@@ -174,6 +188,11 @@ class SafetyFilterConfig:
             raise ValueError(
                 f"SafetyFilterConfig.activation_distance ({self.activation_distance} m) must exceed min_distance "
                 f"({self.min_distance} m), or the separation rule would never act."
+            )
+        if self.latency_compensation > 0.5:
+            raise ValueError(
+                "SafetyFilterConfig.latency_compensation must be within [0, 0.5] s, got "
+                f"{self.latency_compensation!r}: a loop half a second late cannot land a drone, whatever it predicts."
             )
         if not isinstance(self.iterations, int) or self.iterations < 1:
             raise ValueError(f"SafetyFilterConfig.iterations must be an integer >= 1, got {self.iterations!r}.")
@@ -206,6 +225,17 @@ def parse_settings(text: str) -> dict[str, float]:
     return settings
 
 
+def predict_observations(obs: np.ndarray, seconds: float) -> np.ndarray:
+    """Eq. 2 observations ``(..., N, >= 13)`` predicted ``seconds`` ahead at constant velocity: ``p + v seconds``.
+
+    ``p`` is the drone's position minus its goal and ``v`` its velocity relative to the pad, so ``dp/dt = v``
+    whether the pad moves or not; attitude, velocities and the extras are kept. Returns a new array."""
+    predicted = np.array(obs, dtype=float)
+    if seconds:
+        predicted[..., EQ2_POSITION] += seconds * predicted[..., EQ2_VELOCITY]
+    return predicted
+
+
 def settled_drones(rel_goal: np.ndarray, vel: np.ndarray, config: SafetyFilterConfig) -> np.ndarray:
     """Drones resting on their pads, ``(..., N)`` bool, from eq. 2's ``p`` (position minus goal, m) and ``v``
     (velocity relative to the pad, m/s), both ``(..., N, 3)``."""
@@ -236,7 +266,8 @@ def filter_commands(
         settled: ``(..., N)`` bool, drones resting on their pads (left alone; their partners take the whole
             duty); None: nobody settled.
         rel_goal: each drone's position minus its goal ``(..., N, 3)`` m (eq. 2's ``p``), for the split of the
-            duty and the two guards; None: equal split, no guards.
+            duty and the guards; None: equal split, no guards. With latency compensation the callers pass it
+            predicted (``p + v L``) while ``positions`` stay as measured.
         max_speed: commands are scaled down to this speed (m/s) at the end; None: no cap.
         pad_acceleration: each drone's pad's acceleration ``(..., N, 3)`` m/s^2 (:class:`PadAcceleration`); with
             ``config.pad_lead`` > 0 every command first gains ``pad_lead`` times it (the pad lead); None: no lead.
@@ -394,6 +425,8 @@ def with_safety_filter(
     With ``config.pad_lead`` > 0 the wrapper estimates each pad's acceleration (:class:`PadAcceleration`) from the
     pad velocities in the observations, which needs ``observes_pad_velocity`` (the policy's
     ``TaskConfig.observe_platform_velocity``) and the time between two calls, ``policy_dt`` (s).
+    With ``config.latency_compensation`` > 0 the policy reads the observations predicted that far ahead
+    (:func:`predict_observations`), and so do the filter's guards (:func:`filter_actions`).
     """
     config = config or SafetyFilterConfig()
     lead = None
@@ -411,8 +444,9 @@ def with_safety_filter(
 
     def filtered(obs: np.ndarray) -> np.ndarray:
         obs = np.asarray(obs, dtype=float)
-        command = np.asarray(act(obs), dtype=float).reshape(len(obs), num_drones, 3)
         per_drone = obs.reshape(len(obs), num_drones, -1)
+        ahead = predict_observations(per_drone, config.latency_compensation).reshape(obs.shape)
+        command = np.asarray(act(ahead), dtype=float).reshape(len(obs), num_drones, 3)
         accel = None if lead is None else lead.update(per_drone[..., PLATFORM_VELOCITY], next(calls) * policy_dt)
         actions, _ = filter_actions(per_drone, command, offsets, max_speed, config, accel)
         return actions.reshape(len(obs), 3 * num_drones)
@@ -431,7 +465,8 @@ def filter_actions(
     """:func:`filter_commands` on eq. 3 actions, with positions and velocities read from eq. 2 observations.
 
     Args:
-        obs: each drone's observation ``(..., N, >= 13)`` (eq. 2's ``p`` and ``v`` are read from it).
+        obs: each drone's observation ``(..., N, >= 13)``, as measured (eq. 2's ``p`` and ``v`` are read from it; the
+            guards read ``p`` predicted ``config.latency_compensation`` ahead, :func:`predict_observations`).
         actions: normalised actions ``(..., N, 3)``; entries beyond [-1, 1] are clipped first, as eq. 3 does.
         pad_offsets: each drone's pad offset on the plate ``(N, 3)`` m: ``p + offset`` places the drones in one frame.
         max_speed: eq. 3's speed of action 1 (m/s).
@@ -451,7 +486,7 @@ def filter_actions(
         command,
         config,
         settled=settled_drones(rel_goal, vel, config),
-        rel_goal=rel_goal,
+        rel_goal=rel_goal + config.latency_compensation * vel,  # where the guards act: p + v L
         max_speed=max_speed,
         pad_acceleration=pad_acceleration,
     )

@@ -119,6 +119,11 @@ class SharedSwarmVecEnv(InProcessVecEnv):
             raise ValueError(
                 "The training shield has no pad lead (the shared policy sees no pad velocity); set pad_lead=0."
             )
+        if self.shield is not None and self.shield.latency_compensation > 0:
+            raise ValueError(
+                "The training shield has no latency compensation (the policy learns on the observations as they "
+                "come, and the latency it trains with is the dynamics family's); set latency_compensation=0."
+            )
         self.shield_penalty = float(shield_penalty)
         sizes = tuple(swarm_sizes)
         if not sizes or any(isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 1 for n in sizes):
