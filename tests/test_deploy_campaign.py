@@ -64,3 +64,26 @@ def test_a_drone_whose_moving_plate_leaves_it_during_a_landing_lands_on_the_floo
     # Simulator truth: both drones down with their motors off, cf2 at rest on the floor.
     assert result.safe and not result.motors_on.any(), result.summary()
     assert result.final_positions[1, 2] < 0.1 and result.final_speeds[1] < fault_campaign.DOWN_SPEED
+
+
+def test_a_drone_knocked_over_by_a_falling_lost_drone_stops_its_motors(fault_campaign, tmp_path):
+    """Moving arc, seed 6, ``link-loss`` on cf1 at 0.55 s, the moving-pad settings with the latency compensation (the
+    campaign's draw; found on 2026-11-26): cf2 lands under the lost cf1, whose firmware stops its motors 2 s later;
+    cf1 falls onto cf2 and knocks it over. With its motors still on, cf2's own thrust drove it along the floor to
+    2.85 m beyond the hard fence. Now the tumble rule stops its motors: nothing leaves the fence."""
+    from marlander_lite.deploy.rehearsal import FaultSpec, rehearse
+    from marlander_lite.policy_file import load_policy
+
+    lab = fault_campaign.campaign_lab("moving-arc", 12.0)
+    settings = {"cone_radius": 0.04, "reaction_time": 0.35, "pad_lead": 0.2, "latency_compensation": 0.12}
+    lab = lab.replace(safety_filter=lab.safety_filter.with_settings(settings))
+    policy = load_policy(fault_campaign.POLICIES["moving"], lab.task_config(True))
+    fault = FaultSpec("link-loss", start_s=0.5505, drone=0)
+    log_path = tmp_path / "log.jsonl"
+    result = rehearse(lab, policy, simulator="crazyflie", fault=fault, seed=6, log_path=log_path)
+    tumbled = [e for e in result.mission.events if e.kind == "tumbled"]
+    assert len(tumbled) == 1 and tumbled[0].drone == 1, result.summary()
+    campaign = fault_campaign.Campaign()
+    campaign.add("moving arc seed 6 link-loss", result, log_path)
+    assert campaign.ok, campaign.report()
+    assert (result.fence_excess == 0).all() and not result.motors_on.any(), result.summary()

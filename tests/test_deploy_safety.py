@@ -149,3 +149,31 @@ def test_the_takeoff_height_check_matches_arming():
     assert base.replace(limits=dataclasses.replace(base.limits, takeoff_height=0.3)).limits.takeoff_height == 0.3
     with pytest.raises(ConfigError, match="arming always refuses"):
         base.replace(limits=dataclasses.replace(base.limits, takeoff_height=0.29))
+
+
+def test_a_drone_tilted_past_the_tumble_limit_for_long_enough_has_tumbled():
+    """``safety.tumble_tilt_deg`` (60) held for ``safety.tumble_s`` (0.1 s): a drone lying on its side (90 degrees) is
+    flagged once it has lain there 0.1 s; a single tilted frame, a tilt within the limit (45 degrees), a stale pose or
+    a drone not flying are not."""
+    lab = load_lab_config(EXAMPLE_CONFIG)
+    assert (lab.safety.tumble_tilt_deg, lab.safety.tumble_s) == (60.0, 0.1)
+    monitor = SafetyMonitor(lab)
+
+    def tilted(degrees: float, age: float = 0.0) -> SimpleNamespace:
+        half = math.radians(degrees) / 2  # about x: tilt_deg of (sin, 0, 0, cos) is the angle itself
+        level = [0.0, 0.0, 0.0, 1.0]
+        return SimpleNamespace(
+            quat=np.array([[math.sin(half), 0.0, 0.0, math.cos(half)], level]),
+            drone_age=np.array([age, 0.0]),
+            drone_invalid=np.zeros(2, dtype=bool),
+        )
+
+    flying = np.array([True, True])
+    assert monitor.tumbled(0.00, tilted(90.0), flying) == []  # the first tilted frame
+    assert monitor.tumbled(0.02, tilted(0.0), flying) == []  # one bad frame: the clock restarts
+    assert monitor.tumbled(0.04, tilted(90.0), flying) == []
+    assert monitor.tumbled(0.12, tilted(90.0), flying) == []  # 0.08 s
+    assert monitor.tumbled(0.14, tilted(90.0), flying) == [0]  # 0.10 s
+    assert monitor.tumbled(0.16, tilted(45.0), flying) == []  # within the limit
+    assert monitor.tumbled(0.50, tilted(90.0, age=1.0), flying) == []  # a stale pose says nothing
+    assert monitor.tumbled(0.60, tilted(90.0), np.array([False, True])) == []  # down already

@@ -40,6 +40,7 @@ from marlander_lite.deploy.landing import LandingControl
 from marlander_lite.deploy.mission_state import Landings, Milestones, PolicyOutput, PoseStream, Requests, TickBook
 from marlander_lite.deploy.modes import (
     FINISHED,
+    FLYING,
     MODE_TRANSITIONS,
     PHASE_TRANSITIONS,
     UNDER_POLICY,
@@ -51,6 +52,7 @@ from marlander_lite.deploy.pose_sources import Clock, PoseFrame, PoseSource
 from marlander_lite.deploy.results import MissionResult
 from marlander_lite.deploy.runner import InvalidAction, Policy, PolicyRunner, describe_filtering
 from marlander_lite.deploy.safety import Event, EventKind, SafetyMonitor
+from marlander_lite.rotations import tilt_deg
 
 
 class Mission(LandingControl):
@@ -297,6 +299,7 @@ class Mission(LandingControl):
     def decide(self, est: SwarmEstimate) -> None:
         """The mode machine for one tick (safety, policy, commands)."""
         self._check_links()
+        self._check_tumbles(est)
         self._check_requests(est)
         if self.mode == MissionMode.PREFLIGHT:
             self._preflight(est)
@@ -408,6 +411,19 @@ class Mission(LandingControl):
                 self.event("link_lost", f"{self.names[i]}: radio link lost ({reason}) while {was}", i)
                 if self.mode in (MissionMode.TAKEOFF, MissionMode.POLICY) and self.stream.last is not None:
                     self._land_all(self.stream.last, "a link was lost: landing every other drone")
+
+    def _check_tumbles(self, est: SwarmEstimate) -> None:
+        """Stop the motors of a drone that has tumbled (:meth:`SafetyMonitor.tumbled`); before the policy's end every
+        other drone lands, as after a lost link."""
+        flying = np.array([p in FLYING for p in self.phase])
+        for i in self.safety.tumbled(self.t, est, flying):
+            tilt = float(tilt_deg(est.quat[i]))
+            self.event("tumbled", f"{self.names[i]} tilted {tilt:.0f} degrees: it cannot be flown, motors off", i)
+            self.link.stop_motors(i)
+            self._set_phase(i, DronePhase.DOWN)
+            self.book.commands[i] = {"kind": "stop"}
+            if self.mode in (MissionMode.TAKEOFF, MissionMode.POLICY):
+                self._land_all(est, "a drone tumbled: landing every other drone")
 
     def _check_requests(self, est: SwarmEstimate) -> None:
         requests = self.requests

@@ -83,12 +83,14 @@ MODE_TRANSITIONS: dict[MissionMode, dict[MissionMode, str]] = {
         _M.POLICY: "after `limits.takeoff_duration`, every drone within 0.1 m of `limits.takeoff_height` "
         "(`policy_start`)",
         _M.LANDING: "a safety rule says land (`stale_land`, `land` after `geofence_breach`), the height not reached "
-        "`takeoff_duration` + 3 s after take-off (`land`), a lost link (`link_lost`), or " + _LAND_REQUEST,
+        "`takeoff_duration` + 3 s after take-off (`land`), a lost link (`link_lost`), a drone tumbled (`tumbled`), or "
+        + _LAND_REQUEST,
         _M.DONE: _ALL_DOWN,
     },
     _M.POLICY: {
         _M.LANDING: "a safety rule says land (`stale_land`, `land` after `geofence_breach` or bad actions), "
-        "`limits.max_flight_s` under the policy (`flight_timeout`), a lost link (`link_lost`), or " + _LAND_REQUEST,
+        "`limits.max_flight_s` under the policy (`flight_timeout`), a lost link (`link_lost`), a drone tumbled "
+        "(`tumbled`), or " + _LAND_REQUEST,
         _M.DONE: _ALL_DOWN,
     },
     _M.LANDING: {
@@ -107,31 +109,29 @@ PHASE_TRANSITIONS: dict[DronePhase, dict[DronePhase, str]] = {
     _P.TAKEOFF: {
         _P.POLICY: "the policy takes over (`policy_start`)",
         _P.LANDING: "the mission lands every drone (also after a program error)",
-        _P.DOWN: _STOP + ", or the best-effort landing after a program error",
+        _P.DOWN: _STOP + ", it tumbles (`tumbled`), or the best-effort landing after a program error",
         _P.LOST: "its radio link is lost (`link_lost`)",
     },
     _P.POLICY: {
         _P.HOVER: "a safety rule says hover (`stale_hover`, `invalid_pose`, `invalid_action`, `geofence_breach`)",
         _P.LANDING: "the mission lands every drone (also after a program error), or it lingers above its pad "
         "(`handover`)",
-        _P.DOWN: "it touches its pad or anything else (`touchdown`, `hard_touchdown`, `off_pad_contact`), "
-        + _STOP
-        + ", or the best-effort landing after a program error",
+        _P.DOWN: "it touches its pad or anything else (`touchdown`, `hard_touchdown`, `off_pad_contact`), tumbles "
+        "(`tumbled`), " + _STOP + ", or the best-effort landing after a program error",
         _P.LOST: "its radio link is lost (`link_lost`)",
     },
     _P.HOVER: {
         _P.POLICY: "every pose fresh and valid, every action valid again (`recovered`)",
         _P.LANDING: "the mission lands every drone (also after a program error), or it lingers above its pad "
         "(`handover`)",
-        _P.DOWN: "it touches its pad or anything else (`touchdown`, `hard_touchdown`, `off_pad_contact`), "
-        + _STOP
-        + ", or the best-effort landing after a program error",
+        _P.DOWN: "it touches its pad or anything else (`touchdown`, `hard_touchdown`, `off_pad_contact`), tumbles "
+        "(`tumbled`), " + _STOP + ", or the best-effort landing after a program error",
         _P.LOST: "its radio link is lost (`link_lost`)",
     },
     _P.LANDING: {
         _P.DOWN: "it rests on the surface (`touchdown` after a hand-over, `motors_off`), its landing overran by "
-        "`safety.land_timeout_margin_s` (`land_timeout`), " + _STOP + ", or the best-effort landing after a "
-        "program error",
+        "`safety.land_timeout_margin_s` (`land_timeout`), it tumbles (`tumbled`), " + _STOP + ", or the best-effort "
+        "landing after a program error",
         _P.LOST: "its radio link is lost (`link_lost`)",
     },
     _P.DOWN: {

@@ -17,6 +17,9 @@ NaN / out-of-range pose        rejected by the estimator -> hover at once; the b
 NaN / out-of-range action      hover; if it lasts ``stale_land_s`` -> land.
 lost radio link                that drone gets nothing more (its firmware levels out after
                                0.5 s and stops its motors after 2 s); every other drone lands.
+tumbled                        a flying drone tilted more than ``tumble_tilt_deg`` for
+                               ``tumble_s`` (hit, flipped: no command can fly it) -> its motors
+                               stop; during take-off or the policy every other drone lands.
 Ctrl-C, emergency key          every drone lands; a second Ctrl-C stops every motor.
 =============================  ===================================================================
 
@@ -159,6 +162,7 @@ EventKind = Literal[
     "motors_off",
     "land_replanned",
     "land_timeout",
+    "tumbled",
     "flight_timeout",
     "interrupt",
     "emergency",
@@ -211,6 +215,8 @@ class SafetyMonitor:
         self._hard_high = np.array(hard_high)
         self.geofence_at: float | None = None
         """When the geofence was breached (the flight is then aborted)."""
+        self._tilted_since = np.full(len(self.names), np.nan)
+        """Since when each drone has been tilted beyond ``tumble_tilt_deg`` (s; NaN: it is not)."""
         self._degraded = False
         self._bad_action_since: float | None = None
         self._landing = False
@@ -272,6 +278,15 @@ class SafetyMonitor:
                 if gap < cfg.arming_min_separation:
                     problems.append(f"{self.names[i]} and {self.names[j]} are {gap:.2f} m apart")
         return problems
+
+    def tumbled(self, now: float, est: SwarmEstimate, flying: np.ndarray) -> list[int]:
+        """Drones of ``flying`` ``(N,)`` whose fresh, valid pose has been tilted more than ``tumble_tilt_deg`` for at
+        least ``tumble_s``: hit or flipped, they cannot be flown, and their own thrust drives them sideways."""
+        cfg = self.lab.safety
+        fresh = (est.drone_age <= cfg.stale_hover_s) & ~est.drone_invalid
+        tilted = flying & fresh & (np.nan_to_num(tilt_deg(est.quat)) > cfg.tumble_tilt_deg)
+        self._tilted_since = np.where(tilted, np.fmin(self._tilted_since, now), np.nan)
+        return np.flatnonzero(tilted & (now - self._tilted_since >= cfg.tumble_s)).tolist()
 
     def flight(self, now: float, est: SwarmEstimate, flying: np.ndarray, action_ok: bool) -> Verdict:
         """The verdict for drones under the policy (``flying`` ``(N,)``): fly, hover or land."""

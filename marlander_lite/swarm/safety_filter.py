@@ -165,9 +165,10 @@ class SafetyFilterConfig:
     latency_compensation: float = 0.0
     """``L`` of the latency compensation (s), 0 = off: the policy and the guards act on each drone's state predicted
     ``L`` ahead at its present velocity (eq. 2's ``p + v L``, :func:`predict_observations`), where it will be when
-    this command starts to act; the separation rules keep ``reaction_time``. Set it to the command latency beyond what the policy was trained with (the radio,
-    a slow link): a command the loop computes from a pose ``L`` old is late by ``L``, and a drone it tells to brake
-    over its pad has already come ``v L`` lower. At most 0.5 s."""
+    this command starts to act; the separation rules keep ``reaction_time``. A command the loop computes from a pose
+    ``L`` old acts ``L`` late, and a drone it tells to brake over its pad has already come ``v L`` lower. 0.12 s is in
+    the moving-pad settings: it covers 60 ms of command latency beyond the 20 ms the policies were trained with, and
+    part of the tracker's response (docs/transfer.md). At most 0.5 s."""
 
     def __post_init__(self) -> None:
         for f in fields(self):
