@@ -390,12 +390,48 @@ def check_08(shown: Shown) -> None:
     )
     [(rate, episodes, collisions, off_pad, timeouts)] = shown.numbers(pattern)
     assert episodes >= 2 and collisions + off_pad + timeouts <= round(episodes * (1 - rate / 100))
+    # Section 4g: the latency compensation. By hand p + v L; the late drone touches down too fast without it and within
+    # the descent guard's 0.3 m/s with it; each compensated matrix is shown beside its twin, the numbers the files'.
+    assert shown.numbers(r"p \+ v L, .*: \[(\S+) +(\S+) +(\S+) *\]") == [(0.95, 0.02, 1.9)]
+    late = dict(shown.numbers(r"latency_compensation (\S+) s: touchdown at (\S+) m/s after \S+ s"))
+    assert set(late) == {0.0, 0.08} and late[0.0] > 0.5 and late[0.08] <= 0.3
+    title = "| matrix | flown without as |"
+    compensated = markdown_rows(title + shown.text.split(title, 1)[1].split("\n\n", 1)[0])
+    latency = {p.parent.name for p in (RESULTS / "transfer").glob("*-latency/transfer.csv")}
+    assert latency and {r["matrix"] + "-latency" for r in compensated} == latency
+    for r in compensated:
+        with_l = read_csv(RESULTS / "transfer" / (r["matrix"] + "-latency") / "transfer.csv")
+        flown = {(c["row"], c["column"]) for c in with_l}
+        assert r["flown without as"] in (r["matrix"] + "-pad-lead", r["matrix"] + "-sink-limit"), r
+        without = [c for c in read_csv(RESULTS / "transfer" / r["flown without as"] / "transfer.csv")
+                   if (c["row"], c["column"]) in flown]  # fmt: skip
+        assert len(without) == len(with_l), r
+        for cells, side in ((without, "without"), (with_l, "with")):
+            worst = r["worst cell, without"] if side == "without" else r["with latency_compensation 0.12 s"]
+            assert close(first_number(worst), 100 * min(float(c["success_rate"]) for c in cells), 0.051), r
+            failed = sum(int(c["episodes"]) - int(c["successes"]) for c in cells)
+            assert int(r[f"failed, {side}"]) == failed, r
+            error = max(float(c["landing_error_cm"]) for c in cells)
+            assert close(first_number(r[f"worst error, {side}"]), error, 0.0051), r
+            touchdowns = [float(c["touchdown_speed"]) for c in cells if c["column"] == "firmware latency 60 ms"]
+            shown_touchdown = r[f"60 ms touchdown, {side}"]
+            assert (
+                close(first_number(shown_touchdown), max(touchdowns), 0.00051) if touchdowns else shown_touchdown == "-"
+            )
+    pattern = (
+        r"^ *60 ms, [a-z ]+: (\S+) % of (\d+) at \S+ cm, touchdown \S+ m/s; "
+        r"failed: (\d+) collision, (\d+) off the pad, (\d+) timeout"
+    )
+    live_60ms = shown.numbers(pattern)
+    assert len(live_60ms) == 2
+    for rate, episodes, collisions, off_pad, timeouts in live_60ms:
+        assert episodes >= 2 and collisions + off_pad + timeouts <= round(episodes * (1 - rate / 100))
     live = markdown_rows("\n".join(shown.text.rstrip().splitlines()[-3:]))
     assert len(live) == 1 and live[0][""] == "UR10"
     for column in ("point mass", "PyBullet firmware", "PyBullet PID"):
         # 96.5, 98.5 and 91.5 % of 200 episodes in these cells (data/results/transfer/quick-cpu-all-heights)
         assert first_number(live[0][column]) >= 50.0, live[0]
-    assert shown.figures == 3  # the step responses, the transfer bars, the pad's acceleration
+    assert shown.figures == 4  # the step responses, the transfer bars, the pad's acceleration, the late descent
 
 
 def check_09(shown: Shown) -> None:
