@@ -242,11 +242,12 @@ class SafetyConfig:
     land_timeout_margin_s: Annotated[Real, Field(ge=0.5, le=30)] = 3.0
     """A landing that has not ended this long after its planned duration ends with motors off (s)."""
     tumble_tilt_deg: Annotated[Real, Field(ge=30, le=90)] = 60.0
-    """A flying drone tilted more than this (degrees) ... (the firmware's velocity controller holds 20)."""
+    """A flying drone tilted more than this (degrees) for ``tumble_s`` has tumbled (the firmware's velocity
+    controller holds 20; PX4's failure detector flags 60)."""
     tumble_s: Annotated[Real, Field(ge=0, le=1)] = 0.1
-    """... for this long (s) has tumbled: its motors stop. A drone knocked over by another, its motors still on, is
-    driven sideways by its own thrust (a rehearsal measured one 2.85 m beyond the hard fence); one bad mocap frame
-    does not last this long."""
+    """How long a tilt beyond ``tumble_tilt_deg`` must last (s) before the drone's motors stop. A drone knocked over
+    by another, its motors still on, is driven sideways by its own thrust (a rehearsal measured one 2.85 m beyond the
+    hard fence); one bad mocap frame does not last this long."""
 
     def __post_init__(self) -> None:
         check(
@@ -305,8 +306,8 @@ class SafetyFilterSection:
     latency_compensation: Annotated[Real, Field(ge=0, le=0.5)] = _FILTER_DEFAULTS.latency_compensation
     """Latency compensation (s): the policy and the filter's guards act on each drone and pad predicted this far ahead
     at their tracked velocities, where they will be when the command acts; 0: off. On moving pads 0.12, with the other
-    moving-pad settings; it lets a radio or link up to 60 ms slower than the policy trained with land as well as a
-    fast one (docs/transfer.md, "Latency compensation")."""
+    moving-pad settings: with it, 60 ms of command latency cost the `moving` policy at most 2.5 points on moving pads
+    in the simulators (docs/transfer.md, "Latency compensation")."""
 
     def __post_init__(self) -> None:
         self.filter_config()  # the filter's own checks, as a ConfigError naming this section

@@ -167,8 +167,8 @@ class SafetyFilterConfig:
     ``L`` ahead at its present velocity (eq. 2's ``p + v L``, :func:`predict_observations`), where it will be when
     this command starts to act; the separation rules keep ``reaction_time``. A command the loop computes from a pose
     ``L`` old acts ``L`` late, and a drone it tells to brake over its pad has already come ``v L`` lower. 0.12 s is in
-    the moving-pad settings: it covers 60 ms of command latency beyond the 20 ms the policies were trained with, and
-    part of the tracker's response (docs/transfer.md). At most 0.5 s."""
+    the moving-pad settings: it covers the transfer matrix's 60 ms of command latency, Vicon's 20 ms and part of the
+    tracker's response (docs/transfer.md). At most 0.5 s."""
 
     def __post_init__(self) -> None:
         for f in fields(self):
