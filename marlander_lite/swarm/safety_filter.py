@@ -230,10 +230,12 @@ def predict_observations(obs: np.ndarray, seconds: float) -> np.ndarray:
     """Eq. 2 observations ``(..., N, >= 13)`` predicted ``seconds`` ahead at constant velocity: ``p + v seconds``.
 
     ``p`` is the drone's position minus its goal and ``v`` its velocity relative to the pad, so ``dp/dt = v``
-    whether the pad moves or not; attitude, velocities and the extras are kept. Returns a new array."""
+    whether the pad moves or not; attitude, velocities and the extras are kept. With ``seconds`` > 0 a new array;
+    with 0 (compensation off, the default) ``obs`` itself as floats, so that every filtered step does not copy it."""
+    if not seconds:
+        return np.asarray(obs, dtype=float)
     predicted = np.array(obs, dtype=float)
-    if seconds:
-        predicted[..., EQ2_POSITION] += seconds * predicted[..., EQ2_VELOCITY]
+    predicted[..., EQ2_POSITION] += seconds * predicted[..., EQ2_VELOCITY]
     return predicted
 
 
