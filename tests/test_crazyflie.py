@@ -16,13 +16,19 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import marlander_lite
 from marlander_lite.crazyflie import CF2XParams, CrazyflieSwarm, PhysicsConfig, PIDGains
-from marlander_lite.crazyflie.control import CascadedPID, attitude_loop_spectral_radius, mixer_matrix
+from marlander_lite.crazyflie.control import (
+    PUBLISHED_DSL_GAINS,
+    CascadedPID,
+    attitude_loop_spectral_radius,
+    mixer_matrix,
+)
 from marlander_lite.crazyflie.envs import CrazyflieOptions
 from marlander_lite.crazyflie.physics import MotorLag, downwash_push, ground_effect_gain, motor_wrench
 from marlander_lite.crazyflie.ticks import ControlTick
 from marlander_lite.crazyflie.world import CF2X_URDF
 from marlander_lite.episodes import LandingEpisodes
 from marlander_lite.platforms import PlatformConfig
+from marlander_lite.rotations import tilt_deg
 from marlander_lite.task import CONTACT_OTHER, TaskConfig
 
 ENV_ID = "marlander_lite/CrazyflieLanding-v0"
@@ -210,6 +216,34 @@ def test_attitude_loop_recovers_from_a_tilt_and_published_damping_would_not_at_4
     assert rate < 0.05 and tilt < 0.005
     rate, _ = rate_after_tilt(PIDGains(att_d=(20000, 20000, 12000)))
     assert rate > 0.2  # still oscillating 1 to 1.5 s after the tilt
+
+
+def test_the_held_out_published_gains_hover_and_tilt_far_past_the_default_limit():
+    """The transfer matrix's held-out tracker: gym-pybullet-drones' published attitude gains and torque clip
+    (docs/references.md, written out here) and no tilt limit. Over bare physics at 48 Hz it hovers at the thrust
+    balance; chasing 3 m/s sideways our default tracker stops at its 30 degrees, the held-out one tilts twice as far."""
+    assert PUBLISHED_DSL_GAINS.att_p == (70000, 70000, 60000) and PUBLISHED_DSL_GAINS.att_d == (20000, 20000, 12000)
+    assert PUBLISHED_DSL_GAINS.torque_limit == 3200 and PUBLISHED_DSL_GAINS.pos_p == (0.4, 0.4, 1.25)
+
+    def hover_and_tilt(gains):
+        sim = CrazyflieSwarm(
+            TaskConfig(num_drones=1), PlatformConfig(), physics=PhysicsConfig.preset("bare"), gains=gains
+        )
+        start = np.array([[0.3, -0.2, 1.5]])
+        sim.place(0, start)
+        pos, _ = fly(sim, np.zeros((1, 3)), 5 * 24)
+        drift, rpm = np.abs(pos[:, 0] - start).max(), np.mean(sim.rpm[0])
+        sim.place(0, np.array([[0.0, 0.0, 1.5]]))
+        tilts = []
+        for _ in range(24):
+            sim.step(np.array([[[3.0, 0.0, 0.0]]]))
+            tilts.append(tilt_deg(sim.quat[0, 0]))
+        return drift, rpm, max(tilts)
+
+    drift, rpm, tilt = hover_and_tilt(PUBLISHED_DSL_GAINS)
+    assert drift < 0.02 and rpm == pytest.approx(HOVER_RPM, rel=0.01)
+    assert tilt > 45.0
+    assert hover_and_tilt(PIDGains())[2] < 31.0
 
 
 def test_drones_side_by_side_stay_put_with_downwash_and_one_below_sinks():

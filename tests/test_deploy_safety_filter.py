@@ -121,6 +121,7 @@ def test_the_keys_override_the_filter_s_settings(example):
         "cone_radius": 0.04,
         "settled_sink_limit": 0.8,
         "latency_compensation": 0.12,
+        "low_velocity_step": 0.5,
     }
     config = LabConfig.from_dict(example).safety_filter.filter_config()
     expected = dataclasses.replace(
@@ -132,6 +133,7 @@ def test_the_keys_override_the_filter_s_settings(example):
         cone_radius=0.04,
         settled_sink_limit=0.8,
         latency_compensation=0.12,
+        low_velocity_step=0.5,
     )
     assert config == expected
 
@@ -150,6 +152,10 @@ def test_the_keys_override_the_filter_s_settings(example):
             r"^safety_filter.latency_compensation: Input should be less than or equal to 0.5 \(got 0.8\)",
         ),
         ({"cone_radius": 0.5}, r"^safety_filter.cone_radius: Input should be less than or equal to 0.1 \(got 0.5\)"),
+        (
+            {"low_velocity_step": -0.5},
+            r"^safety_filter.low_velocity_step: Input should be greater than or equal to 0 \(got -0.5\)",
+        ),
         (
             {"settled_sink_limit": -0.8},
             r"^safety_filter.settled_sink_limit: Input should be greater than or equal to 0 \(got -0.8\)",
@@ -312,6 +318,24 @@ def test_the_runner_compensates_latency_on_the_estimate_it_predicts():
         u, _ = runner.filter_velocity(down, est, idle)
         np.testing.assert_allclose(u[:, 2], [-sink, -sink], atol=1e-9)
     np.testing.assert_array_equal(est.pos, goals + up)  # the measured estimate is kept
+
+
+def test_the_runner_limits_the_velocity_step_against_the_world_velocity():
+    """The runner's estimate holds world-frame velocities, so the velocity-step limit (0.5 m/s) needs no pad velocity.
+    Two drones 0.1 m above goals on a pad moving at 0.8 m/s along x, flying with it: a setpoint of the pad's 0.8 m/s
+    passes unchanged (a limit read against the velocity relative to the pad would cut it to 0.5 m/s), one reversing to
+    -1 m/s becomes 0.8 - 0.5 = 0.3 m/s."""
+    goals, up = np.array([[-0.6, 0.0, 0.0], [0.6, 0.0, 0.0]]), np.array([0.0, 0.0, 0.1])
+    est = dataclasses.replace(
+        estimate(goals + up, vel=np.tile([0.8, 0.0, 0.0], (2, 1)), goals=goals),
+        pad_vel=np.tile([0.8, 0.0, 0.0], (2, 1)),
+    )
+    config = SafetyFilterConfig(low_velocity_step=0.5, cone_slope=0.0, centring_gain=0.0)
+    runner = PolicyRunner(HeadOn(), TaskConfig(num_drones=2), 2.0, config)
+    setpoints, idle = np.array([[0.8, 0.0, 0.0], [-1.0, 0.0, 0.0]]), np.zeros(2, dtype=bool)
+    u, changed = runner.filter_velocity(setpoints, est, idle)
+    np.testing.assert_allclose(u, [[0.8, 0.0, 0.0], [0.3, 0.0, 0.0]], atol=1e-12)
+    np.testing.assert_array_equal(changed, [False, True])
 
 
 # ------------------------------------------------------------------ the mission

@@ -23,7 +23,7 @@ from marlander_lite.swarm.vec_env import SharedSwarmVecEnv
 SHARED = "data/policies/shared-quick-local.safetensors"
 MOVING = "data/policies/moving-smooth-16m.safetensors"
 MOVING_PAD_SETTINGS = {"cone_radius": 0.04, "reaction_time": 0.35, "pad_lead": 0.2}
-"""The lab guide's filter settings for moving pads."""
+"""The lab guide's filter settings for moving pads before the latency compensation joined them (2026-11-26)."""
 ONLY_SEPARATION = SafetyFilterConfig(sidestep=0.0, wake_slope=0.0)
 
 
@@ -412,3 +412,83 @@ def test_latency_compensation_brakes_a_late_drone_before_its_pad() -> None:
     assert touchdown_speed(0.0) > 0.5
     assert touchdown_speed(0.08) <= 0.3
     assert touchdown_speed(0.0, delay=0.0) <= 0.3  # without the delay the guard alone suffices
+
+
+def test_velocity_step_limit_worked_by_hand() -> None:
+    """Below ``cone_height`` (0.3 m) above its goal, a drone's horizontal command may differ from its horizontal
+    velocity by at most ``max(low_velocity_step, |v_rel|)``: it may always brake to its pad's velocity, and be thrown
+    beyond that by at most 0.5 m/s. By hand, each drone asked for -1.17 m/s along x:
+
+    * at rest: -0.5 m/s; at 0.3 m/s: 0.3 - 0.5 = -0.2 m/s;
+    * at 0.7 m/s: braking to a stop is allowed, no more: 0 m/s; running away at -1.75 m/s and asked for +1.23: 0 m/s;
+    * 0.5 m/s up: unchanged; the vertical command is never touched.
+    """
+    config = SafetyFilterConfig(low_velocity_step=0.5, cone_slope=0.0, centring_gain=0.0)
+    rel_goal = np.array([[0.02, 0.0, 0.1], [0.02, 0.0, 0.1], [0.02, 0.0, 0.1], [0.02, 0.0, 0.1], [0.02, 0.0, 0.5]])
+    positions = rel_goal + np.arange(5)[:, None] * [0.0, 1.2, 0.0]  # 1.2 m apart: no pair rule
+    vel = np.array([[0.0, 0, -0.2], [0.3, 0, -0.2], [0.7, 0, -0.2], [-1.75, 0, -0.2], [0.7, 0, -0.2]])
+    command = np.tile([-1.17, 0.0, -0.2], (5, 1))
+    command[3, 0] = 1.23
+    u, acted = filter_commands(positions, vel, command, config, rel_goal=rel_goal)
+    np.testing.assert_allclose(u[:, 0], [-0.5, -0.2, 0.0, 0.0, -1.17], atol=1e-12)
+    np.testing.assert_allclose(u[:, 1:], command[:, 1:])
+    np.testing.assert_array_equal(acted, [True, True, True, True, False])
+    # Over a pad moving at 0.5 m/s (world frame), a drone at 0.7 m/s is 0.2 m/s off its pad's velocity: the bound is
+    # 0.5 m/s, so it gets 0.7 - 0.5 = 0.2 m/s, and a command of the pad's own velocity passes.
+    pad_vel = np.tile([0.5, 0.0, 0.0], (5, 1))
+    moving, _ = filter_commands(positions, vel, command, config, rel_goal=rel_goal, pad_velocity=pad_vel)
+    assert moving[2, 0] == pytest.approx(0.2)
+    follow, _ = filter_commands(positions, vel, pad_vel, config, rel_goal=rel_goal, pad_velocity=pad_vel)
+    np.testing.assert_allclose(follow[2], pad_vel[2])
+    with pytest.raises(ValueError, match=r"pad_velocity must be a finite \(5, 3\) array"):
+        filter_commands(positions, vel, command, config, rel_goal=rel_goal, pad_velocity=np.full((5, 3), np.nan))
+    # the default (off) changes nothing
+    off = SafetyFilterConfig(cone_slope=0.0, centring_gain=0.0)
+    np.testing.assert_allclose(filter_commands(positions, vel, command, off, rel_goal=rel_goal)[0], command)
+
+
+def test_velocity_step_limit_keeps_a_tracker_without_tilt_limit_level_over_its_pad() -> None:
+    """PyBullet, the held-out tracker (gym-pybullet-drones' published gains, no tilt limit, bare physics): a controller
+    that swings 1.2 m/s across the pad centre 25 cm above it. Through the default filter the tracker tilts past 50
+    degrees, loses lift and hits the floor sideways, faster than the task's 0.5 m/s; with the 0.5 m/s velocity-step
+    limit (braking to a stop stays allowed) it stays within 40 degrees and nothing touches down that fast in 3 s."""
+    from marlander_lite.crazyflie import CrazyflieSwarm, PhysicsConfig
+    from marlander_lite.crazyflie.control import PUBLISHED_DSL_GAINS
+    from marlander_lite.rotations import tilt_deg
+    from marlander_lite.task import TaskConfig
+
+    def swing(step: float) -> tuple[float, float]:
+        config = SafetyFilterConfig(low_velocity_step=step)
+        bare = PhysicsConfig.preset("bare")
+        sim = CrazyflieSwarm(TaskConfig(num_drones=1), PlatformConfig(), physics=bare, gains=PUBLISHED_DSL_GAINS)
+        try:
+            goal = sim.pad_pos[0, 0] + np.array([0.0, 0.0, sim.task.landed_height])
+            sim.place(0, (goal + np.array([-0.15, 0.0, 0.25]))[None])
+            tilt, touchdown = 0.0, 0.0
+            for _ in range(72):
+                rel_goal = sim.pos[0] - goal
+                command = np.array([[-1.2 * np.sign(rel_goal[0, 0]), 0.0, -0.3]])
+                command, _ = filter_commands(sim.pos[0], sim.vel[0], command, config, rel_goal=rel_goal)
+                sim.step(command[None])
+                tilt = max(tilt, float(tilt_deg(sim.quat[0, 0])))
+                if sim.contact[0, 0]:
+                    return tilt, float(np.linalg.norm(sim.vel[0, 0]))
+            return tilt, touchdown
+        finally:
+            sim.close()
+
+    tilt, touchdown = swing(0.0)
+    assert tilt > 50.0 and touchdown > 0.5
+    tilt, touchdown = swing(0.5)
+    assert tilt < 40.0 and touchdown <= 0.5
+
+
+def test_velocity_step_limit_needs_the_pad_velocity_on_moving_pads() -> None:
+    config = SafetyFilterConfig(low_velocity_step=0.5)
+    offsets = np.zeros((1, 3))
+    with pytest.raises(ValueError, match="low_velocity_step > 0 on moving pads needs each pad's velocity"):
+        with_safety_filter(lambda o: o[:, :3], 1, offsets, 3.0, config, pads_move=True)
+    with_safety_filter(lambda o: o[:, :3], 1, offsets, 3.0, config, pads_move=True, observes_pad_velocity=True)
+    with_safety_filter(lambda o: o[:, :3], 1, offsets, 3.0, config)  # pads at rest
+    with pytest.raises(ValueError, match="shield has no velocity-step limit"):
+        SharedSwarmVecEnv(swarm_sizes=[2], swarms_per_size=1, shield=SafetyFilterConfig(low_velocity_step=0.5))

@@ -10,6 +10,7 @@ import pytest
 
 from marlander_lite import task, training_aids
 from marlander_lite.cli import main
+from marlander_lite.crazyflie.control import PUBLISHED_DSL_GAINS
 from marlander_lite.episodes import StepOutcome
 from marlander_lite.experiments import transfer
 from marlander_lite.platforms import PlatformConfig
@@ -331,4 +332,18 @@ def test_the_combined_column_is_asked_for_by_name_and_applies_all_three_perturba
     with pytest.raises(SystemExit):
         main(["transfer", POLICY, "--columns", "firmware everything"])
     err = capsys.readouterr().err
-    assert "unknown column(s) 'firmware everything'" in err and "firmware combined (or all)" in err
+    assert "unknown column(s) 'firmware everything'" in err and "firmware combined, held-out DSL PID (or all)" in err
+
+
+def test_the_held_out_column_flies_the_published_gains_over_bare_physics() -> None:
+    """Not in the default matrix; named, it flies our cascaded PID with gym-pybullet-drones' published gains at 48 Hz,
+    without ground effect, drag or downwash."""
+    assert "held-out DSL PID" not in transfer.TransferConfig(POLICY).columns
+    column = next(c for c in transfer.EXTRA_COLUMNS if c.name == "held-out DSL PID")
+    world = transfer.build_episodes(load_policy(POLICY), column, transfer.ROWS[0], "perfect")
+    try:
+        assert world.sim.controller_kind == "pid" and world.sim.gains == PUBLISHED_DSL_GAINS
+        assert world.sim.physics.aero_effects == () and world.sim.control_dt == pytest.approx(1 / 48)
+        assert world.sim.perturbation.is_nominal
+    finally:
+        world.sim.close()

@@ -95,6 +95,24 @@ def check_gains(gains: object) -> None:
             )
 
 
+PUBLISHED_DSL_GAINS = PIDGains(
+    att_d=(20000.0, 20000.0, 12000.0),
+    att_integral_limit=(1.0, 1.0, 1500.0),
+    torque_limit=3200.0,
+    max_body_rate=1000.0,
+    max_tilt_deg=89.0,
+)
+"""The cascaded PID as gym-pybullet-drones publishes it (``DSLPIDControl``, [Panerati2021]): a held-out tracker.
+
+Its attitude D gains (20000, 20000, 12000), its +-3200 PWM torque clip and its roll/pitch integral bound of 1, with
+nothing our defaults add: no tilt limit (89 degrees: :class:`PIDGains` wants one below 90), no clip of the demanded
+body rate (1000 rad/s). Ticked at 48 Hz, as that project's examples run it, the attitude loop is unstable in the
+linear model (:func:`attitude_loop_spectral_radius` 3.3 in roll) and the torque clip keeps it to a small, fast
+oscillation. No policy is trained or tuned against it: the transfer matrix's ``held-out DSL PID`` column flies it
+(with ``"bare"`` physics, that project's default) to ask how a policy does on a tracker it has never met. One
+difference of structure stays: ``DSLPIDControl`` damps the rate of its Euler angles, this class the body rates."""
+
+
 def mix_to_rpm(
     base: float,
     tx: float,

@@ -196,6 +196,7 @@ class PolicyRunner:
                 rel_goal=ahead.pos - ahead.goal,
                 max_speed=self.max_speed,
                 pad_acceleration=lead,
+                pad_velocity=est.pad_vel,
             )
         except ValueError as error:
             raise InvalidAction(f"the safety filter failed: {error}") from None

@@ -303,6 +303,11 @@ class SafetyFilterSection:
     """Pad lead (s): every command gains this times its pad's acceleration, estimated from the pad's tracked velocity,
     so that a lagging tracker keeps up with a pad that brakes, reverses or turns; 0: off. On moving pads 0.2 (with
     ``cone_radius`` 0.04 and ``reaction_time`` 0.35; docs/transfer.md)."""
+    low_velocity_step: Annotated[Real, Field(ge=0, le=3)] = _FILTER_DEFAULTS.low_velocity_step
+    """Velocity-step limit (m/s): below 0.3 m above its goal, a drone's horizontal setpoint may differ from its tracked
+    velocity by at most this, which bounds how far its velocity tracker tilts it; 0: off. 0.5 for a tracker without a
+    tilt limit (the Crazyflie firmware clamps at 20 degrees): through such a tracker it lifted `paper-robust`'s static
+    landings in simulation (docs/transfer.md, "A held-out tracker")."""
     latency_compensation: Annotated[Real, Field(ge=0, le=0.5)] = _FILTER_DEFAULTS.latency_compensation
     """Latency compensation (s): the policy and the filter's guards act on each drone and pad predicted this far ahead
     at their tracked velocities, where they will be when the command acts; 0: off. On moving pads 0.12, with the other

@@ -5,8 +5,9 @@ policy file on each *column* (the point mass; PyBullet with our cascaded PID; Py
 Crazyflie firmware's own velocity tracker; that tracker perturbed: a 15 % heavier drone, 60 ms of
 command latency, velocity-loop gains x0.7 and x1.3; every PyBullet column with ground effect, drag
 and downwash on) and each *row* (the pad on the floor, on the UR10 flange, moving along an arc or a
-line at 0.2-0.5 m/s). Every column flies the same random starts (one seed per row and episode). One more column is
-flown only when asked for (:data:`EXTRA_COLUMNS`): the three sluggish perturbations at once.
+line at 0.2-0.5 m/s). Every column flies the same random starts (one seed per row and episode). Two more columns are
+flown only when asked for (:data:`EXTRA_COLUMNS`): the three sluggish perturbations at once, and a held-out tracker
+(gym-pybullet-drones' published PID gains, no tilt limit, bare physics) that nothing here was tuned on.
 
 Besides success (with a Wilson interval) and landing error, each cell measures whether the flight is
 one a real Crazyflie can follow:
@@ -44,6 +45,7 @@ from typing import Any
 import numpy as np
 
 from marlander_lite import task, training_aids
+from marlander_lite.crazyflie.control import PUBLISHED_DSL_GAINS
 from marlander_lite.envs.options import policy_input
 from marlander_lite.episodes import LandingEpisodes, StepOutcome
 from marlander_lite.experiments.metrics import TrialMetrics, wilson_interval
@@ -98,9 +100,16 @@ COLUMNS: tuple[Column, ...] = (
 
 EXTRA_COLUMNS: tuple[Column, ...] = (
     Column("firmware combined", "crazyflie", _firmware(mass_scale=1.15, latency_s=0.06, gain_scale=0.7)),
+    Column("held-out DSL PID", "crazyflie", {"controller": "pid", "gains": PUBLISHED_DSL_GAINS, "physics": "bare"}),
 )
-"""Columns flown only when asked for (``--columns``, or ``all``): the three sluggish perturbations at once, a 15 %
-heavier drone whose commands arrive 60 ms late at velocity gains x0.7, a tracker none of the columns above is."""
+"""Columns flown only when asked for (``--columns``, or ``all``):
+
+* ``firmware combined``: the three sluggish perturbations at once, a 15 % heavier drone whose commands arrive 60 ms
+  late at velocity gains x0.7, a tracker none of the columns above is;
+* ``held-out DSL PID``: a tracker no policy or setting of this project was tuned on, the cascaded PID with the gains
+  gym-pybullet-drones publishes (:data:`~marlander_lite.crazyflie.control.PUBLISHED_DSL_GAINS`: no tilt limit, its
+  under-damped attitude loop at 48 Hz) over that project's default physics (no ground effect, drag or downwash).
+  The kind of independent simulator a lab reaches for first."""
 
 ROWS: tuple[Row, ...] = (
     Row("floor", "static-floor"),
@@ -288,6 +297,7 @@ def cell_actor(
         config,
         policy_dt=task_config.dt,
         observes_pad_velocity=task_config.observe_platform_velocity,
+        pads_move=world.sim.platform.is_moving,
     )
 
 

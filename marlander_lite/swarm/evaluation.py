@@ -195,6 +195,7 @@ def actor_factory(
             guard,
             policy_dt=task.dt,
             observes_pad_velocity=task.observe_platform_velocity,
+            pads_move=platform.is_moving,
         )
 
     if controller == "shared":

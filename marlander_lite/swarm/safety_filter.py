@@ -54,6 +54,13 @@ Smith predictor acts on the output predicted past a known delay [Smith1957] (doc
 measured velocity, not a model. The separation and wake rules keep the measured positions: they predict ``tau``
 ahead on their own, and predicting from the predicted positions too added collisions (docs/transfer.md).
 
+**Velocity-step limit** (``low_velocity_step``, off by default). A velocity tracker tilts a drone in proportion to the
+difference between its command and its velocity. Below ``h_max`` above its goal, a drone's horizontal command is
+moved towards its horizontal velocity until the two differ by at most ``max(Delta, |v_rel|)``, ``v_rel`` its velocity
+relative to its pad: it may always brake to its pad's velocity, but a swing across the pad is not reversed harder than
+``Delta``. Through a tracker without a tilt limit such reversals tilted drones past 50 degrees a few centimetres over
+their pads, and they met the floor sideways (docs/transfer.md, "A held-out tracker").
+
 **Centring.** Over its pad (within the pad radius) and below ``h_max``, a drone's horizontal command gains
 ``-k_c`` times its horizontal offset from the goal. A policy that hovers a few centimetres off its pad centre
 would otherwise wait at the approach guard until the flight time ran out; with the rule it is drawn to the
@@ -85,6 +92,16 @@ from marlander_lite.task import EQ2_POSITION, EQ2_VELOCITY, PLATFORM_VELOCITY
 _EPS = 1e-9
 PAD_RADIUS = PlateGeometry().pad_radius
 """m: a drone within this horizontal distance of its goal, low and slow, counts as settled (the plate's pad radius)."""
+
+
+MOVING_PAD_SETTINGS: dict[str, float] = {
+    "cone_radius": 0.04,
+    "reaction_time": 0.35,
+    "pad_lead": 0.2,
+    "latency_compensation": 0.12,
+}
+"""Changes to :class:`SafetyFilterConfig`'s defaults for moving pads, the lab guide's (docs/transfer.md measured them:
+the `moving` policies land 97.5-100 % in every moving cell of the transfer matrix through them)."""
 
 
 @dataclass(frozen=True)
@@ -162,6 +179,13 @@ class SafetyFilterConfig:
     (:func:`with_safety_filter`) it needs a policy that observes the pad's velocity; the deployment runner takes the
     pad's velocity from motion capture, whatever the policy."""
 
+    low_velocity_step: float = 0.0
+    """``Delta`` of the velocity-step limit (m/s), 0 = off: below ``cone_height`` above its goal, a drone's horizontal
+    command may differ from its horizontal velocity by at most ``max(Delta, |v_rel|)``, ``v_rel`` its horizontal
+    velocity relative to its pad: it may always brake to its pad's velocity, but not be thrown the other way harder
+    than ``Delta``. A velocity tracker tilts in proportion to that difference, and one without a tilt limit, asked to
+    reverse a swing a few centimetres over its pad, tilts past 50 degrees, loses lift and touches down sideways
+    (docs/transfer.md, "A held-out tracker")."""
     latency_compensation: float = 0.0
     """``L`` of the latency compensation (s), 0 = off: the policy and the guards act on each drone's state predicted
     ``L`` ahead at its present velocity (eq. 2's ``p + v L``, :func:`predict_observations`), where it will be when
@@ -258,6 +282,7 @@ def filter_commands(
     rel_goal: np.ndarray | None = None,
     max_speed: float | None = None,
     pad_acceleration: np.ndarray | None = None,
+    pad_velocity: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Velocity commands changed as little as the rules allow (module docstring).
 
@@ -274,6 +299,9 @@ def filter_commands(
         max_speed: commands are scaled down to this speed (m/s) at the end; None: no cap.
         pad_acceleration: each drone's pad's acceleration ``(..., N, 3)`` m/s^2 (:class:`PadAcceleration`); with
             ``config.pad_lead`` > 0 every command first gains ``pad_lead`` times it (the pad lead); None: no lead.
+        pad_velocity: each drone's pad's velocity ``(..., N, 3)`` m/s, in the frame of ``velocities``, for the
+            velocity-step limit (which needs each drone's velocity in that frame and relative to its pad); None: the
+            pads are at rest in that frame.
 
     Returns:
         ``(filtered, acted)``: commands ``(..., N, 3)`` m/s and ``(..., N)`` bool, True where a drone's command
@@ -299,6 +327,14 @@ def filter_commands(
         if lead.shape != command.shape or not np.isfinite(lead).all():
             raise ValueError(f"pad_acceleration must be a finite {command.shape} array, got shape {lead.shape}.")
         command = command + lead  # the policy's command with the feed-forward, which every rule below starts from
+    if config.low_velocity_step > 0 and goal is not None:
+        relative = vel
+        if pad_velocity is not None:
+            pad_vel = np.asarray(pad_velocity, dtype=float)
+            if pad_vel.shape != command.shape or not np.isfinite(pad_vel).all():
+                raise ValueError(f"pad_velocity must be a finite {command.shape} array, got shape {pad_vel.shape}.")
+            relative = vel - pad_vel
+        command = _limit_velocity_step(command, vel, relative, goal, config)
     u = command.copy()
     if n >= 2:
         u = _separate(pos, vel, u, settled, goal, config)
@@ -389,6 +425,22 @@ def _wake_rule(
     return side, bound
 
 
+def _limit_velocity_step(
+    command: np.ndarray, vel: np.ndarray, relative: np.ndarray, goal: np.ndarray, config: SafetyFilterConfig
+) -> np.ndarray:
+    """The velocity-step limit: below ``cone_height`` above its goal, the horizontal command moved towards the drone's
+    horizontal velocity ``vel`` until the two differ by at most ``max(low_velocity_step, |relative|)`` (``relative``:
+    the velocity relative to the pad, so braking to the pad's velocity is always allowed); others unchanged."""
+    step = command[..., :2] - vel[..., :2]
+    size = np.hypot(step[..., 0], step[..., 1])
+    bound = np.maximum(config.low_velocity_step, np.hypot(relative[..., 0], relative[..., 1]))
+    low = goal[..., 2] < config.cone_height
+    scale = np.where(low, np.minimum(1.0, bound / np.maximum(size, _EPS)), 1.0)
+    limited = command.copy()
+    limited[..., :2] = vel[..., :2] + step * scale[..., None]
+    return limited
+
+
 def _lowest_vertical_command(goal: np.ndarray, config: SafetyFilterConfig) -> np.ndarray:
     """The most negative vertical command the descent and approach guards allow, ``(..., N)`` m/s."""
     lowest = np.full(goal.shape[:-1], -np.inf)
@@ -418,6 +470,7 @@ def with_safety_filter(
     config: SafetyFilterConfig | None = None,
     policy_dt: float | None = None,
     observes_pad_velocity: bool = False,
+    pads_move: bool = False,
 ) -> BatchAct:
     """Wrap a batch actor (centralised observations ``(E, 13 N)`` -> actions ``(E, 3 N)`` in [-1, 1]) with
     :func:`filter_commands`: actions are read as commands of ``max_speed`` m/s per unit (eq. 3).
@@ -430,8 +483,17 @@ def with_safety_filter(
     ``TaskConfig.observe_platform_velocity``) and the time between two calls, ``policy_dt`` (s).
     With ``config.latency_compensation`` > 0 the policy reads the observations predicted that far ahead
     (:func:`predict_observations`), and so do the filter's guards (:func:`filter_actions`).
+    With ``config.low_velocity_step`` > 0 the velocity-step limit compares commands with each drone's velocity in the
+    world frame: eq. 2's ``v`` plus the pad velocity in the observations (``observes_pad_velocity``), or ``v`` itself
+    on pads at rest. On pads that move (``pads_move``) it therefore needs ``observes_pad_velocity``.
     """
     config = config or SafetyFilterConfig()
+    if config.low_velocity_step > 0 and pads_move and not observes_pad_velocity:
+        raise ValueError(
+            "low_velocity_step > 0 on moving pads needs each pad's velocity in the observations (a policy trained "
+            "with observe_platform_velocity, as the moving preset is): without it the limit would hold the drone to "
+            "its velocity relative to the pad. Fly it on static pads, or set low_velocity_step=0."
+        )
     lead = None
     if config.pad_lead > 0:
         if not (observes_pad_velocity and policy_dt):
@@ -451,7 +513,8 @@ def with_safety_filter(
         ahead = predict_observations(per_drone, config.latency_compensation).reshape(obs.shape)
         command = np.asarray(act(ahead), dtype=float).reshape(len(obs), num_drones, 3)
         accel = None if lead is None else lead.update(per_drone[..., PLATFORM_VELOCITY], next(calls) * policy_dt)
-        actions, _ = filter_actions(per_drone, command, offsets, max_speed, config, accel)
+        pad_vel = per_drone[..., PLATFORM_VELOCITY] if observes_pad_velocity else None
+        actions, _ = filter_actions(per_drone, command, offsets, max_speed, config, accel, pad_vel)
         return actions.reshape(len(obs), 3 * num_drones)
 
     return filtered
@@ -464,6 +527,7 @@ def filter_actions(
     max_speed: float,
     config: SafetyFilterConfig,
     pad_acceleration: np.ndarray | None = None,
+    pad_velocity: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`filter_commands` on eq. 3 actions, with positions and velocities read from eq. 2 observations.
 
@@ -476,6 +540,8 @@ def filter_actions(
         config: the filter's settings.
         pad_acceleration: each drone's pad's acceleration ``(..., N, 3)`` m/s^2 for the pad lead (``config.pad_lead``);
             None: no lead.
+        pad_velocity: each drone's pad's velocity ``(..., N, 3)`` m/s (from observations that hold it), for the
+            velocity-step limit (``config.low_velocity_step``); None: the pads are taken to be at rest.
 
     Returns:
         ``(filtered, correction)``: actions ``(..., N, 3)`` in [-1, 1], and how far the filter moved each drone's
@@ -483,14 +549,18 @@ def filter_actions(
     """
     rel_goal, vel = obs[..., EQ2_POSITION], obs[..., EQ2_VELOCITY]
     command = np.clip(actions, -1.0, 1.0) * max_speed
+    # Eq. 2's v is relative to the pad; the velocity-step limit compares commands (world frame) with world velocities.
+    # Only the differences of velocities keep drones apart, so the other rules read the same either way.
+    world = vel if pad_velocity is None or config.low_velocity_step == 0 else vel + pad_velocity
     u, _ = filter_commands(
         rel_goal + pad_offsets,
-        vel,
+        world,
         command,
         config,
         settled=settled_drones(rel_goal, vel, config),
         rel_goal=rel_goal + config.latency_compensation * vel,  # where the guards act: p + v L
         max_speed=max_speed,
         pad_acceleration=pad_acceleration,
+        pad_velocity=None if world is vel else pad_velocity,
     )
     return np.clip(u / max_speed, -1.0, 1.0), np.linalg.norm(u - command, axis=-1)

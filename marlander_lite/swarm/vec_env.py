@@ -124,6 +124,11 @@ class SharedSwarmVecEnv(InProcessVecEnv):
                 "The training shield has no latency compensation (the policy learns on the observations as they "
                 "come, and the latency it trains with is the dynamics family's); set latency_compensation=0."
             )
+        if self.shield is not None and self.shield.low_velocity_step > 0:
+            raise ValueError(
+                "The training shield has no velocity-step limit (the shared policy sees no pad velocity, and the limit "
+                "is a rule of the flight, not of training); set low_velocity_step=0."
+            )
         self.shield_penalty = float(shield_penalty)
         sizes = tuple(swarm_sizes)
         if not sizes or any(isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 1 for n in sizes):
