@@ -533,6 +533,21 @@ def test_bad_actions_and_positions_raise_and_leave_the_env_usable():
         marlander_lite.make_vec_env("crazyflie", num_envs=1, gui=True)
 
 
+def test_the_swarm_reads_its_physics_option_as_the_envs_do():
+    """A preset name or a mapping of changes, as ``CrazyflieOptions.physics`` takes them; anything else is refused."""
+    for physics, expected in (
+        ("bare", PhysicsConfig.preset("bare")),
+        ({"control_hz": 24.0}, PhysicsConfig.preset("aero", control_hz=24.0)),
+    ):
+        sim = CrazyflieSwarm(TaskConfig(num_drones=1), PlatformConfig(), physics=physics)
+        try:
+            assert sim.physics == expected
+        finally:
+            sim.close()
+    with pytest.raises(TypeError, match="physics must be a PhysicsConfig"):
+        CrazyflieSwarm(TaskConfig(num_drones=1), PlatformConfig(), physics=42)
+
+
 def test_controller_rejects_gains_it_cannot_use():
     with pytest.raises(ValueError, match="att_d"):
         CascadedPID(CF2XParams(), PIDGains(att_d=(0.0, 1.0, 1.0)), 1, 1 / 48)

@@ -385,6 +385,24 @@ def test_swarm_evaluate_command_writes_tables_and_never_overwrites_them(lander_f
     with pytest.raises(SystemExit):
         main(["swarm", "evaluate", "--out", str(tmp_path)])
     assert "Nothing to fly" in capsys.readouterr().err
+    for extra, message in (
+        (["--simulator", "crazyflie", "--firmware", "--held-out"], "--firmware and --held-out name two trackers"),
+        (["--held-out"], "choose the PyBullet tracker: add --simulator crazyflie"),
+    ):
+        with pytest.raises(SystemExit):
+            main([*args, *extra, "--out", str(tmp_path / "bad")])
+        assert message in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()
+
+
+def test_swarm_evaluate_flies_the_held_out_tracker_and_says_so(lander_file, tmp_path):
+    """``--held-out``: PyBullet with gym-pybullet-drones' published PID gains over bare physics, named in the table."""
+    from marlander_lite.cli import main
+
+    args = ["swarm", "evaluate", "--shared", str(lander_file), "--sizes", "1", "--trials", "1", "--num-envs", "1"]
+    assert main([*args, "--simulator", "crazyflie", "--held-out", "--out", str(tmp_path), "--stem", "held"]) == 0
+    table = (tmp_path / "held.md").read_text()
+    assert table.startswith("crazyflie (held-out tracker), ") and "--held-out" in table
 
 
 # ---------------------------------------------------------------------------- learning

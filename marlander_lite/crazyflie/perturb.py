@@ -22,7 +22,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, Literal, get_args
 
-from marlander_lite.crazyflie.control import CascadedPID, PIDGains
+from marlander_lite.crazyflie.control import PUBLISHED_DSL_GAINS, CascadedPID, PIDGains
 from marlander_lite.crazyflie.firmware import FirmwareGains, FirmwareTracker
 from marlander_lite.crazyflie.params import CF2XParams, PhysicsConfig
 
@@ -30,6 +30,13 @@ Controller = Literal["pid", "firmware"]
 """Names of the velocity trackers the PyBullet swarm can fly with."""
 CONTROLLERS: tuple[str, ...] = get_args(Controller)
 """``("pid", "firmware")``."""
+
+
+HELD_OUT_TRACKER: dict[str, Any] = {"controller": "pid", "gains": PUBLISHED_DSL_GAINS, "physics": "bare"}
+"""Options of the PyBullet swarm for a tracker nothing in this project was tuned on: the cascaded PID with the gains
+gym-pybullet-drones publishes (:data:`~marlander_lite.crazyflie.control.PUBLISHED_DSL_GAINS`: no tilt limit, its
+under-damped attitude loop at 48 Hz) over that project's default physics (no ground effect, drag or downwash). The
+transfer matrix's ``held-out DSL PID`` column and ``marlander swarm evaluate --held-out`` fly it."""
 
 
 def check_controller(controller: object) -> Controller:

@@ -52,7 +52,7 @@ import pybullet as p
 from marlander_lite import task
 from marlander_lite.crazyflie.control import CascadedPID, PIDGains
 from marlander_lite.crazyflie.firmware import FirmwareGains, FirmwareTracker
-from marlander_lite.crazyflie.params import CF2XParams, PhysicsConfig, ratio_to_count
+from marlander_lite.crazyflie.params import CF2XParams, PhysicsConfig, build_physics, ratio_to_count
 from marlander_lite.crazyflie.perturb import (
     Controller,
     Perturbation,
@@ -86,7 +86,8 @@ class CrazyflieSwarm:
         task_config: the MDP constants (N, policy rate, arena).
         platform: plate motion.
         num_envs: must be 1.
-        physics: rates and aerodynamic effects (default: ``PhysicsConfig.preset("aero")``).
+        physics: rates and aerodynamic effects: a :class:`PhysicsConfig`, a preset name (``"aero"``, the default, or
+            ``"bare"``) or a mapping of its fields (:func:`~marlander_lite.crazyflie.params.build_physics`).
         drone: the quadrotor's constants.
         gains: the cascaded PID's gains (``controller="pid"``).
         gui: open a PyBullet window instead of running headless.
@@ -106,7 +107,7 @@ class CrazyflieSwarm:
         task_config: TaskConfig,
         platform: PlatformConfig,
         num_envs: int = 1,
-        physics: PhysicsConfig | None = None,
+        physics: PhysicsConfig | Mapping[str, Any] | str | None = None,
         drone: CF2XParams | None = None,
         gains: PIDGains | None = None,
         gui: bool = False,
@@ -125,7 +126,7 @@ class CrazyflieSwarm:
                 "use make_vec_env('crazyflie', num_envs=...) for several, one per subprocess."
             )
         self.task, self.platform, self.num_envs = task_config, platform, 1
-        self.physics = physics or PhysicsConfig.preset("aero")
+        self.physics = build_physics(physics)  # a PhysicsConfig, a preset name or a mapping of changes; None: "aero"
         self.params = drone or CF2XParams()
         self.gains = gains or PIDGains()
         n = self.num_drones = task_config.num_drones

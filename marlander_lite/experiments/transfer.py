@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 
 from marlander_lite import task, training_aids
-from marlander_lite.crazyflie.control import PUBLISHED_DSL_GAINS
+from marlander_lite.crazyflie.perturb import HELD_OUT_TRACKER
 from marlander_lite.envs.options import policy_input
 from marlander_lite.episodes import LandingEpisodes, StepOutcome
 from marlander_lite.experiments.metrics import TrialMetrics, wilson_interval
@@ -100,16 +100,16 @@ COLUMNS: tuple[Column, ...] = (
 
 EXTRA_COLUMNS: tuple[Column, ...] = (
     Column("firmware combined", "crazyflie", _firmware(mass_scale=1.15, latency_s=0.06, gain_scale=0.7)),
-    Column("held-out DSL PID", "crazyflie", {"controller": "pid", "gains": PUBLISHED_DSL_GAINS, "physics": "bare"}),
+    Column("held-out DSL PID", "crazyflie", HELD_OUT_TRACKER),
 )
 """Columns flown only when asked for (``--columns``, or ``all``):
 
 * ``firmware combined``: the three sluggish perturbations at once, a 15 % heavier drone whose commands arrive 60 ms
   late at velocity gains x0.7, a tracker none of the columns above is;
-* ``held-out DSL PID``: a tracker no policy or setting of this project was tuned on, the cascaded PID with the gains
-  gym-pybullet-drones publishes (:data:`~marlander_lite.crazyflie.control.PUBLISHED_DSL_GAINS`: no tilt limit, its
-  under-damped attitude loop at 48 Hz) over that project's default physics (no ground effect, drag or downwash).
-  The kind of independent simulator a lab reaches for first."""
+* ``held-out DSL PID``: a tracker no policy or setting of this project was tuned on
+  (:data:`~marlander_lite.crazyflie.perturb.HELD_OUT_TRACKER`: the cascaded PID with the gains gym-pybullet-drones
+  publishes, no tilt limit, its under-damped attitude loop at 48 Hz, over that project's default physics). The kind of
+  independent simulator a lab reaches for first."""
 
 ROWS: tuple[Row, ...] = (
     Row("floor", "static-floor"),

@@ -34,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from marlander_lite.crazyflie.perturb import HELD_OUT_TRACKER
 from marlander_lite.envs.options import policy_input
 from marlander_lite.episodes import LandingEpisodes
 from marlander_lite.experiments import apf
@@ -372,6 +373,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--simulator", default="pointmass", choices=("pointmass", "crazyflie"))
     parser.add_argument("--firmware", action="store_true", help="crazyflie: the firmware velocity tracker")
+    parser.add_argument(
+        "--held-out",
+        action="store_true",
+        help="crazyflie: the held-out tracker (gym-pybullet-drones' published PID gains, no tilt limit, bare physics)",
+    )
     parser.add_argument("--num-envs", type=int, default=100)
     parser.add_argument("--out", required=True)
     parser.add_argument("--stem", default="scaling")
@@ -413,8 +419,13 @@ def run(args: argparse.Namespace, program: str = "marlander swarm evaluate") -> 
         raise ValueError("--centralised-filter flies the policy given with --centralised FILE; give it.")
     if args.filter_settings and not (args.shared_filter or args.centralised_filter):
         raise ValueError("--filter-settings sets the filter of --shared-filter or --centralised-filter; give one.")
+    if args.firmware and args.held_out:
+        raise ValueError("--firmware and --held-out name two trackers: give one.")
+    if (args.firmware or args.held_out) and args.simulator != "crazyflie":
+        raise ValueError("--firmware and --held-out choose the PyBullet tracker: add --simulator crazyflie.")
     check_results_free(args.out, args.stem, args.force)
-    options = {"controller": "firmware"} if args.firmware else {}
+    options = {"controller": "firmware"} if args.firmware else dict(HELD_OUT_TRACKER) if args.held_out else {}
+    tracker = " (firmware tracker)" if args.firmware else " (held-out tracker)" if args.held_out else ""
     settings = parse_settings(args.filter_settings or "")
     platforms = [
         PlatformConfig(kind=args.platform, speed=speed, geometry=PlateGeometry(inclination_deg=tilt))
@@ -445,7 +456,7 @@ def run(args: argparse.Namespace, program: str = "marlander swarm evaluate") -> 
         print(_cell_text(row), f"({row.seconds:.0f} s)", flush=True)
         rows.append(row)
     note = (
-        f"{args.simulator}{' (firmware tracker)' if args.firmware else ''}, Vicon sensing, the paper's random starts, "
+        f"{args.simulator}{tracker}, Vicon sensing, the paper's random starts, "
         f"{args.trials} trials per cell, seed {args.seed}, 30 s limit: `{command_line(args, program)}`."
     )
     if args.shared_filter or args.centralised_filter:
