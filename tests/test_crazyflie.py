@@ -229,16 +229,19 @@ def test_the_held_out_published_gains_hover_and_tilt_far_past_the_default_limit(
         sim = CrazyflieSwarm(
             TaskConfig(num_drones=1), PlatformConfig(), physics=PhysicsConfig.preset("bare"), gains=gains
         )
-        start = np.array([[0.3, -0.2, 1.5]])
-        sim.place(0, start)
-        pos, _ = fly(sim, np.zeros((1, 3)), 5 * 24)
-        drift, rpm = np.abs(pos[:, 0] - start).max(), np.mean(sim.rpm[0])
-        sim.place(0, np.array([[0.0, 0.0, 1.5]]))
-        tilts = []
-        for _ in range(24):
-            sim.step(np.array([[[3.0, 0.0, 0.0]]]))
-            tilts.append(tilt_deg(sim.quat[0, 0]))
-        return drift, rpm, max(tilts)
+        try:
+            start = np.array([[0.3, -0.2, 1.5]])
+            sim.place(0, start)
+            pos, _ = fly(sim, np.zeros((1, 3)), 5 * 24)
+            drift, rpm = np.abs(pos[:, 0] - start).max(), np.mean(sim.rpm[0])
+            sim.place(0, np.array([[0.0, 0.0, 1.5]]))
+            tilts = []
+            for _ in range(24):
+                sim.step(np.array([[[3.0, 0.0, 0.0]]]))
+                tilts.append(tilt_deg(sim.quat[0, 0]))
+            return drift, rpm, max(tilts)
+        finally:
+            sim.close()
 
     drift, rpm, tilt = hover_and_tilt(PUBLISHED_DSL_GAINS)
     assert drift < 0.02 and rpm == pytest.approx(HOVER_RPM, rel=0.01)
