@@ -550,17 +550,18 @@ def filter_actions(
     rel_goal, vel = obs[..., EQ2_POSITION], obs[..., EQ2_VELOCITY]
     command = np.clip(actions, -1.0, 1.0) * max_speed
     # Eq. 2's v is relative to the pad; the velocity-step limit compares commands (world frame) with world velocities.
-    # Only the differences of velocities keep drones apart, so the other rules read the same either way.
-    world = vel if pad_velocity is None or config.low_velocity_step == 0 else vel + pad_velocity
+    # Only the differences of velocities keep drones apart, so the other rules read the same either way; without the
+    # limit the velocities stay as observed, so that filtered flights without it are what they were before it.
+    world_frame = pad_velocity is not None and config.low_velocity_step > 0
     u, _ = filter_commands(
         rel_goal + pad_offsets,
-        world,
+        vel + pad_velocity if world_frame else vel,
         command,
         config,
         settled=settled_drones(rel_goal, vel, config),
         rel_goal=rel_goal + config.latency_compensation * vel,  # where the guards act: p + v L
         max_speed=max_speed,
         pad_acceleration=pad_acceleration,
-        pad_velocity=None if world is vel else pad_velocity,
+        pad_velocity=pad_velocity if world_frame else None,
     )
     return np.clip(u / max_speed, -1.0, 1.0), np.linalg.norm(u - command, axis=-1)
