@@ -18,7 +18,8 @@ from marlander_lite import task, training_aids
 from marlander_lite.platforms import PlatformConfig
 from marlander_lite.rotations import vector_norm
 from marlander_lite.sensing import ObservationChannel, SensingConfig
-from marlander_lite.task import TaskConfig
+from marlander_lite.swarm.pad_acceleration import acceleration_step
+from marlander_lite.task import PLATFORM_VELOCITY, TaskConfig
 
 
 @dataclass
@@ -145,7 +146,10 @@ class LandingEpisodes:
         self.num_envs, self.num_drones = e, n
         self.rng = np.random.default_rng(seed)
         exact = 3 if self.task.observe_previous_command else 0
-        self.channel = ObservationChannel(self.sensing, e, n, self.task.dt, self.task.obs_per_drone, exact)
+        # The pad acceleration is appended after the channel: it is estimated from what the channel let through.
+        self._observes_acceleration = self.task.observe_platform_acceleration
+        channel_width = self.task.obs_per_drone - 3 * self._observes_acceleration
+        self.channel = ObservationChannel(self.sensing, e, n, self.task.dt, channel_width, exact)
         # A landed drone's centre rests landed_height above its pad along the pad normal: that is eq. 2's goal.
         self._goal_lift = self.task.landed_height * self.pad_normal
         self.steps = np.zeros(e, dtype=np.int64)
@@ -159,14 +163,33 @@ class LandingEpisodes:
         self.previous_command = np.zeros((e, n, 3))
         """Last velocity commands ``(num_envs, N, 3)`` m/s, zero after a reset: observed with
         ``TaskConfig.observe_previous_command`` and compared by the smoothness training aid."""
+        self.pad_acceleration = np.zeros((e, n, 3))
+        """Each pad's acceleration ``(num_envs, N, 3)`` m/s^2 as estimated from the observed pad velocities, zero after
+        a reset: observed last with ``TaskConfig.observe_platform_acceleration``, as the deployment loop does."""
+        self._seen_pad_vel = np.zeros((e, n, 3))
 
     def seed(self, seed: int | None) -> None:
         """Restart the random generator: the same seed gives the same resets and noise."""
         self.rng = np.random.default_rng(seed)
 
     def true_observations(self) -> np.ndarray:
-        """Eq. 2 observations of the current state without noise or latency, ``(num_envs, N, 13)``."""
-        return self._measure(self.sim.state(), self.previous_command)[2]
+        """Eq. 2 observations of the current state without noise or latency, ``(num_envs, N, 13)`` (and the extras
+        the task asks for; the pad acceleration is the current estimate, which exists only from observations)."""
+        return self._with_acceleration(self._measure(self.sim.state(), self.previous_command)[2])
+
+    def _with_acceleration(self, obs: np.ndarray, env_ids: np.ndarray | slice = slice(None)) -> np.ndarray:
+        if not self._observes_acceleration:
+            return obs
+        return np.concatenate([obs, self.pad_acceleration[env_ids]], axis=-1)
+
+    def _estimate_acceleration(self, seen: np.ndarray) -> np.ndarray:
+        """Update the pad-acceleration estimate from the observations the policy gets now, and append it."""
+        if not self._observes_acceleration:
+            return seen
+        pad_vel = seen[..., PLATFORM_VELOCITY]
+        self.pad_acceleration = acceleration_step(self.pad_acceleration, self._seen_pad_vel, pad_vel, self.task.dt)
+        self._seen_pad_vel = pad_vel.copy()
+        return self._with_acceleration(seen)
 
     def _measure(self, s: SwarmState, command: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         rel_pos = s.pos - (s.pad_pos + self._goal_lift)
@@ -201,7 +224,11 @@ class LandingEpisodes:
         self.episode_return[ids] = 0.0
         self.previous_command[ids] = 0.0
         self.min_separation[ids] = task.min_separation(s.pos)
-        return self.channel.reset(ids, obs, self.rng)
+        seen = self.channel.reset(ids, obs, self.rng)
+        if self._observes_acceleration:
+            self.pad_acceleration[ids] = 0.0
+            self._seen_pad_vel[ids] = seen[..., PLATFORM_VELOCITY]
+        return self._with_acceleration(seen, ids)
 
     def step(self, action: np.ndarray) -> StepOutcome:
         """Apply normalised actions (eq. 3) in every env and evaluate the MDP.
@@ -247,7 +274,7 @@ class LandingEpisodes:
         self.prev_dist = dist
         self.episode_return += reward
         return StepOutcome(
-            obs=self.channel.observe(obs, self.rng),
+            obs=self._estimate_acceleration(self.channel.observe(obs, self.rng)),
             reward=reward,
             drone_rewards=r_drones,
             terminated=terminated,

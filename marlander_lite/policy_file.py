@@ -107,9 +107,9 @@ class PolicyContract:
     """Widths of the hidden layers of the actor."""
     normalize_observations: Annotated[bool, Strict()]
     """Whether ``obs_mean``/``obs_var`` tensors standardise the input (VecNormalize statistics)."""
-    obs_per_drone: Literal[13, 16, 19] = OBS_PER_DRONE
-    """Numbers per drone in the input: 13 (eq. 2), 16 with the platform velocity or the previous command, 19 with
-    both (``task`` says which)."""
+    obs_per_drone: Literal[13, 16, 19, 22] = OBS_PER_DRONE
+    """Numbers per drone in the input: 13 (eq. 2), 3 more for each of the platform velocity, the previous command
+    and the platform acceleration (``task`` says which)."""
     obs_clip: Annotated[Real, Field(gt=0, le=1e6)] = 10.0
     """Standardised inputs are clipped to +-obs_clip."""
     obs_epsilon: Annotated[Real, Field(ge=0, le=1)] = 1e-8
@@ -157,15 +157,20 @@ class PolicyContract:
             )
 
     def observation_options(self) -> dict[str, bool]:
-        """The ``TaskConfig`` fields that shape this policy's input: ``observe_platform_velocity`` and
-        ``observe_previous_command``, read from :attr:`task` (files written before the previous command could be
-        observed lack it: False; a contract without ``task`` at all: 16 numbers per drone mean the platform
+        """The ``TaskConfig`` fields that shape this policy's input (:data:`~marlander_lite.task.OBSERVATION_OPTIONS`),
+        read from :attr:`task` (files written before the previous command or the platform acceleration could be
+        observed lack them: False; a contract without ``task`` at all: 16 numbers per drone mean the platform
         velocity)."""
         command = bool(self.task.get("observe_previous_command", False))
+        acceleration = bool(self.task.get("observe_platform_acceleration", False))
         platform = self.task.get("observe_platform_velocity")
         if platform is None:
-            platform = self.obs_per_drone - 3 * command > OBS_PER_DRONE
-        return {"observe_platform_velocity": bool(platform), "observe_previous_command": command}
+            platform = self.obs_per_drone - 3 * (command + acceleration) > OBS_PER_DRONE
+        return {
+            "observe_platform_velocity": bool(platform),
+            "observe_previous_command": command,
+            "observe_platform_acceleration": acceleration,
+        }
 
     def check_observation(self) -> None:
         """Raise :class:`PolicyFileError` unless ``obs_per_drone`` is what :meth:`observation_options` ask for."""

@@ -46,16 +46,17 @@ OBS_LIMITS = (20.0, 1.0, 50.0, 200.0)
 them. Only a crash or a drone far outside the arena reaches them."""
 
 
-OBSERVATION_OPTIONS = ("observe_platform_velocity", "observe_previous_command")
+OBSERVATION_OPTIONS = ("observe_platform_velocity", "observe_previous_command", "observe_platform_acceleration")
 """The ``TaskConfig`` switches that append to eq. 2's observation (3 numbers each, in this order): a policy
 file's choice, which every simulator and the deployment loop follow."""
 
 
 def observation_limits(obs_per_drone: int) -> np.ndarray:
     """Half-widths of one drone's observation ``(obs_per_drone,)``: eq. 2's four parts bounded by
-    :data:`OBS_LIMITS`, then the extras (platform velocity, previous command), each bounded like a velocity."""
+    :data:`OBS_LIMITS`, then the extras (platform velocity, previous command, platform acceleration), each bounded
+    like a velocity (the acceleration estimate never exceeds 3 m/s^2)."""
     p, q, v, w = OBS_LIMITS
-    return np.repeat(np.array([p, q, v, w, v]), [3, 4, 3, 3, 6])[:obs_per_drone]
+    return np.repeat(np.array([p, q, v, w, v]), [3, 4, 3, 3, 9])[:obs_per_drone]
 
 
 CONTACT_NONE, CONTACT_OWN_PAD, CONTACT_OTHER = 0, 1, 2
@@ -163,6 +164,11 @@ class TaskConfig:
     next to how the drone moved, which tells a sluggish tracker from a brisk one (the last action in the input, as
     in [Hwangbo2019] and [Kaufmann2023], docs/references.md). It is known exactly: sensing noise and latency never
     touch it."""
+    observe_platform_acceleration: bool = False
+    """Beyond the paper: append the platform's acceleration (3 numbers, m/s^2) last, estimated as the deployment loop
+    estimates it, from the platform velocities the policy observed (noise and latency included;
+    :func:`~marlander_lite.swarm.pad_acceleration.acceleration_step`). With it a policy can lead a pad that brakes
+    and turns instead of trailing it. Needs ``observe_platform_velocity``."""
 
     def __post_init__(self) -> None:
         checks: list[tuple[bool, str]] = [
@@ -209,6 +215,11 @@ class TaskConfig:
                 "the spawn heights do not fit in the arena",
             ),
             (
+                self.observe_platform_velocity or not self.observe_platform_acceleration,
+                "observe_platform_acceleration is estimated from the observed platform velocity: it needs "
+                "observe_platform_velocity=True",
+            ),
+            (
                 0.0 < self.spawn_near_pad_height_min < 1.0,
                 "spawn_near_pad_height_min must be above 0 m and below 1 m (the highest near-pad start)",
             ),
@@ -233,9 +244,9 @@ class TaskConfig:
 
     @property
     def obs_per_drone(self) -> int:
-        """Length of one drone's observation: 13 (eq. 2), plus 3 with ``observe_platform_velocity`` and 3 more with
-        ``observe_previous_command``."""
-        return OBS_PER_DRONE + 3 * bool(self.observe_platform_velocity) + 3 * bool(self.observe_previous_command)
+        """Length of one drone's observation: 13 (eq. 2), plus 3 for each of ``observe_platform_velocity``,
+        ``observe_previous_command`` and ``observe_platform_acceleration``."""
+        return OBS_PER_DRONE + 3 * sum(bool(getattr(self, name)) for name in OBSERVATION_OPTIONS)
 
     @property
     def obs_dim(self) -> int:
@@ -266,8 +277,9 @@ def observe(
     ang_vel: np.ndarray,
     pad_vel: np.ndarray | None = None,
     previous_command: np.ndarray | None = None,
+    pad_acceleration: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Eq. 2: ``O_t^i = [p_t^i, q_t^i, v_t^i, omega_t^i]``, shape ``(..., 13)`` (16 or 19 with the extras).
+    """Eq. 2: ``O_t^i = [p_t^i, q_t^i, v_t^i, omega_t^i]``, shape ``(..., 13)`` (16, 19 or 22 with the extras).
 
     Args:
         rel_pos: ``p``, drone position minus its goal point (own pad centre raised by
@@ -278,7 +290,9 @@ def observe(
         pad_vel: only with ``TaskConfig.observe_platform_velocity`` (beyond the paper): the pad's
             world velocity ``(..., 3)`` m/s, appended as numbers 13-15.
         previous_command: only with ``TaskConfig.observe_previous_command`` (beyond the paper): the velocity command
-            of the previous step ``(..., 3)`` m/s, appended last.
+            of the previous step ``(..., 3)`` m/s, appended next.
+        pad_acceleration: only with ``TaskConfig.observe_platform_acceleration`` (beyond the paper): the estimate of
+            the pad's acceleration ``(..., 3)`` m/s^2, appended last.
 
     Each part is clipped to :data:`OBS_LIMITS`; a unit quaternion is within ``[-1, 1]`` already.
     """
@@ -293,6 +307,8 @@ def observe(
         parts.append(np.clip(pad_vel, -v_max, v_max))
     if previous_command is not None:
         parts.append(np.clip(previous_command, -v_max, v_max))
+    if pad_acceleration is not None:
+        parts.append(np.clip(pad_acceleration, -v_max, v_max))
     return np.concatenate(parts, axis=-1)
 
 

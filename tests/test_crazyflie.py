@@ -402,8 +402,12 @@ def test_drone_placed_on_the_floor_rests_there_and_reports_the_contact():
 # ---------------------------------------------------------------------------- faces
 
 
-def test_gymnasium_and_sb3_checkers_pass():
-    env = gym.make(ENV_ID, num_drones=2)
+MOVING_EXTRAS = {"observe_platform_velocity": True, "observe_platform_acceleration": True}
+
+
+@pytest.mark.parametrize("options", [{}, {"platform": "moving-arc", "task": MOVING_EXTRAS}])
+def test_gymnasium_and_sb3_checkers_pass(options):
+    env = gym.make(ENV_ID, num_drones=2, **options)
     gym_check_env(env.unwrapped, skip_render_check=True)
     sb3_check_env(env.unwrapped)
     env.close()

@@ -410,6 +410,32 @@ def test_a_drone_resting_on_a_moving_plate_next_to_its_pad_rides_along(lab):
     world.close()
 
 
+def test_a_policy_that_observes_the_pad_acceleration_gets_it_last_in_the_rehearsal(lab, tmp_path):
+    """The contract's ``observe_platform_acceleration`` reaches the deployment loop: 19 numbers a drone (eq. 2, the
+    pad velocity, the pad acceleration estimated from it), and the P-controller of conftest.py, which reads only
+    ``p``, lands both drones."""
+    weight, bias = np.zeros((6, 38)), np.zeros(6)
+    for i in range(2):
+        weight[3 * i : 3 * i + 3, 19 * i : 19 * i + 3] = -np.diag([1.0, 1.0, 0.4])
+        bias[3 * i + 2] = -0.4 * 0.05
+    task = {"observe_platform_velocity": True, "observe_platform_acceleration": True}
+    contract = PolicyContract(
+        num_drones=2, max_speed=3.0, policy_hz=24.0, activation="relu", hidden_sizes=(),
+        normalize_observations=False, obs_per_drone=19, task=task,
+    )  # fmt: skip
+    path = save_policy(
+        tmp_path / "acceleration.safetensors", contract, {"actor.0.weight": weight, "actor.0.bias": bias}
+    )
+    log_path = tmp_path / "flight.jsonl"
+    result = rehearse(lab, path, log_path=log_path)
+    assert result.mission.success and result.safe, result.summary()
+    seen = [np.asarray(tick["obs"]) for tick in read_flight_log(log_path).ticks if tick["obs"] is not None]
+    assert len(seen) > 10 and all(obs.shape == (2, 19) for obs in seen)
+    acceleration = np.linalg.norm(np.array(seen)[:, :, 16:19], axis=-1)
+    assert np.isfinite(acceleration).all() and acceleration.max() <= 3.0 + 1e-6  # the estimator's clip
+    assert acceleration.max() > 0  # motion capture's noise on a still plate: estimated, not left at zero
+
+
 def test_a_policy_that_observes_its_previous_command_reads_the_setpoint_last_sent(lab, tmp_path):
     # The P-controller of conftest.py less a quarter of the drone's previous command (a gentler descent).
     weight, bias = np.zeros((6, 32)), np.zeros(6)

@@ -33,6 +33,7 @@ from marlander_lite.deploy.mission import Mission
 from marlander_lite.deploy.modes import DronePhase, MissionMode
 from marlander_lite.deploy.rehearsal import rehearse
 from marlander_lite.deploy.runner import PolicyRunner, clamp_speed
+from marlander_lite.swarm.pad_acceleration import PadAcceleration
 from marlander_lite.swarm.safety_filter import SafetyFilterConfig
 from marlander_lite.task import TaskConfig
 
@@ -227,6 +228,23 @@ def test_a_pad_without_a_drone_does_not_count(example):
 
 
 # ------------------------------------------------------------------ the runner
+def test_the_runner_observes_the_pad_acceleration_as_the_simulators_estimate_it():
+    """A policy trained with ``observe_platform_acceleration`` reads, last, the estimate the simulators' episodes
+    make from observed pad velocities; here the pads brake at 1 m/s^2 along x, one estimate per 24 Hz tick."""
+    task = TaskConfig(num_drones=2, observe_platform_velocity=True, observe_platform_acceleration=True)
+    runner = PolicyRunner(HeadOn(), task, max_speed=1.0)
+    reference, dt = PadAcceleration(), task.dt
+    for k in range(30):
+        est = dataclasses.replace(estimate(HEAD_ON), t=k * dt, pad_vel=np.tile([0.5 - k * dt, 0.0, 0.0], (2, 1)))
+        obs = runner.observe(est)
+        assert obs.shape == (2, 19)
+        expected = reference.update(est.pad_vel, est.t)
+        np.testing.assert_allclose(obs[:, 16:19], expected, atol=1e-12)
+        np.testing.assert_array_equal(runner.observe(est), obs)  # the same estimate twice: not a zero-second step
+    np.testing.assert_allclose(obs[:, 16], -1.0, atol=1e-4)  # 0.7^29 of the start left
+    assert PolicyRunner(HeadOn(), TaskConfig(num_drones=2), max_speed=1.0).observe(est).shape == (2, 13)
+
+
 def test_the_runner_keeps_a_head_on_pair_to_the_rule():
     runner = PolicyRunner(HeadOn(), TaskConfig(num_drones=2), max_speed=1.0, safety_filter=CONFIG)
     est = estimate(HEAD_ON)

@@ -13,6 +13,7 @@ from marlander_lite.platforms import PlatformConfig
 from marlander_lite.pointmass import PointMassParams, PointMassSwarm, PointMassVecEnv
 from marlander_lite.rotations import rotate_vector
 from marlander_lite.sensing import SensingConfig
+from marlander_lite.swarm.pad_acceleration import PadAcceleration
 from marlander_lite.task import TaskConfig
 
 ENV_ID = "marlander_lite/PointMassLanding-v0"
@@ -210,6 +211,40 @@ def test_the_previous_command_is_observed_exactly_and_at_once():
     np.testing.assert_array_equal(episodes.true_observations()[1, :, 16:], 0.0)
 
 
+def test_the_pad_acceleration_is_estimated_from_the_observed_pad_velocities():
+    # Perfect sensing: the estimate is zero while the plate cruises and approaches the plate's 1 m/s^2 at its
+    # reversals (an average that takes 0.3 of each new difference: 1 - 0.7^k of it after k steps).
+    accel = {"observe_platform_velocity": True, "observe_platform_acceleration": True}
+    _, episodes = make_episodes(num_envs=2, platform="moving-linear", **accel)
+    seen = [episodes.reset()]
+    np.testing.assert_array_equal(seen[0][..., 16:19], 0.0)  # nothing to difference yet
+    for _ in range(200):
+        outcome = episodes.step(np.zeros((2, 3)))
+        seen.append(outcome.obs)
+        assert not outcome.terminated.any() and not outcome.truncated.any()
+    seen = np.array(seen)
+    pad_vel, estimate = seen[:, 0, 0, 13:16], seen[:, 0, 0, 16:19]
+    size = np.linalg.norm(estimate, axis=-1)
+    assert size.max() == pytest.approx(1.0, abs=0.03) and size.max() <= 1.0 + 1e-9
+    # cruised[k]: the pad velocity did not change from observation k to k + 1; after 30 such steps in a row the
+    # estimate holds 0.7^30 of what it had.
+    cruised = np.linalg.norm(np.diff(pad_vel, axis=0), axis=-1) < 1e-12
+    window = np.lib.stride_tricks.sliding_window_view(cruised, 30).all(axis=-1)
+    assert window.any() and (size[30:][window] < 0.03).all()
+    # Vicon noise: the estimate is what the deployment loop's estimator makes of the same observed velocities.
+    _, noisy = make_episodes(num_envs=3, num_drones=2, platform="moving-arc", sensing=SensingConfig.vicon(), **accel)
+    first = noisy.reset()
+    estimators = [PadAcceleration() for _ in range(3)]
+    for k in range(60):
+        obs = first if k == 0 else noisy.step(np.full((3, 6), 0.1)).obs
+        for env, estimator in enumerate(estimators):
+            expected = estimator.update(obs[env, :, 13:16], k * TaskConfig().dt)
+            np.testing.assert_allclose(obs[env, :, 16:19], expected, atol=1e-12)
+    noisy.reset(np.array([1]))
+    np.testing.assert_array_equal(noisy.pad_acceleration[1], 0.0)
+    assert np.abs(noisy.pad_acceleration[0]).max() > 0  # the other envs keep theirs
+
+
 def test_position_noise_has_the_configured_spread():
     _, episodes = make_episodes(num_envs=2000, sensing=SensingConfig(pos_noise_std=0.01))
     outcome = episodes.step(np.zeros((2000, 3)))
@@ -220,7 +255,14 @@ def test_position_noise_has_the_configured_spread():
 # ---------------------------------------------------------------------------- API checkers
 
 
-@pytest.mark.parametrize("extras", [{}, {"observe_platform_velocity": True, "observe_previous_command": True}])
+@pytest.mark.parametrize(
+    "extras",
+    [
+        {},
+        {"observe_platform_velocity": True, "observe_previous_command": True},
+        {"observe_platform_velocity": True, "observe_platform_acceleration": True},
+    ],
+)
 def test_gymnasium_and_sb3_checkers_pass(extras):
     env = gym.make(ENV_ID, num_drones=2, platform="moving-arc", task=extras)
     gym_check_env(env.unwrapped, skip_render_check=True)

@@ -175,7 +175,7 @@ def test_zero_variance_without_epsilon_and_overflowing_weights_are_refused(tmp_p
         ({"normalize_observations": 1}, r"normalize_observations: Input should be a valid boolean"),
         ({"hidden_sizes": [8.5]}, r"hidden_sizes.0: Input should be a valid integer"),
         ({"hidden_sizes": "8"}, r"hidden_sizes: Input should be a valid tuple"),
-        ({"obs_per_drone": 14}, r"obs_per_drone: Input should be 13, 16 or 19"),
+        ({"obs_per_drone": 14}, r"obs_per_drone: Input should be 13, 16, 19 or 22"),
         ({"obs_clip": -1.0}, r"obs_clip: Input should be greater than 0"),
         ({"surprise": 1}, r"surprise: unknown field"),
     ],
@@ -284,8 +284,12 @@ def test_the_task_says_what_the_observation_holds_beyond_eq2(tmp_path):
             normalize_observations=False, obs_per_drone=obs_per_drone, task=task,
         )  # fmt: skip
 
-    def options(platform: bool, command: bool) -> dict[str, bool]:
-        return {"observe_platform_velocity": platform, "observe_previous_command": command}
+    def options(platform: bool, command: bool, acceleration: bool = False) -> dict[str, bool]:
+        return {
+            "observe_platform_velocity": platform,
+            "observe_previous_command": command,
+            "observe_platform_acceleration": acceleration,
+        }
 
     # a file of v0.2 and earlier: 16 numbers per drone and no word on the previous command mean the platform velocity
     assert contract(16).observation_options() == options(True, False)
@@ -296,6 +300,13 @@ def test_the_task_says_what_the_observation_holds_beyond_eq2(tmp_path):
     task = TaskConfig(num_drones=1, **both.observation_options())
     assert task.obs_per_drone == 19
     both.check_compatible(task)
+    every = contract(22, **dict.fromkeys(options(True, True, True), True))
+    assert every.observation_options() == options(True, True, True)
+    every.check_compatible(TaskConfig(num_drones=1, **every.observation_options()))
+    with pytest.raises(PolicyFileError, match=r"observe_platform_acceleration \(policy True, task False\) differs"):
+        every.check_compatible(task)
+    # a file without the word, 19 numbers: velocity and command, as files written before the acceleration
+    assert contract(19, observe_previous_command=True).observation_options() == options(True, True)
     with pytest.raises(PolicyFileError, match=r"observe_previous_command \(policy True, task False\) differs"):
         both.check_compatible(TaskConfig(num_drones=1, observe_platform_velocity=True))
     # the same count, other numbers: a policy reading its previous command is not fed the platform velocity

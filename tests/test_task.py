@@ -34,6 +34,14 @@ def test_the_extras_follow_eq2_platform_velocity_first():
         for b in (0, 1)
     ]
     assert sizes == [13, 16, 16, 19]
+    both = {"observe_platform_velocity": True, "observe_platform_acceleration": True}
+    assert TaskConfig(**both).obs_per_drone == 19
+    assert TaskConfig(**both, observe_previous_command=True).obs_per_drone == 22
+    accel = [2.5, -1.0, 0.0]
+    every = task.observe(*(np.array([x]) for x in (p, q, v, w, pad_vel, command, accel)))
+    np.testing.assert_array_equal(every[0], p + q + v + w + pad_vel + command + accel)
+    with pytest.raises(ValueError, match=r"observe_platform_acceleration .* needs observe_platform_velocity=True"):
+        TaskConfig(observe_platform_acceleration=True)
 
 
 def test_batched_observation_flattens_drone_by_drone():

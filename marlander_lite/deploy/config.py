@@ -205,7 +205,10 @@ class LabConfig:
         return [self.pads[d.pad] for d in self.drones]
 
     def task_config(
-        self, observe_platform_velocity: bool = False, observe_previous_command: bool = False
+        self,
+        observe_platform_velocity: bool = False,
+        observe_previous_command: bool = False,
+        observe_platform_acceleration: bool = False,
     ) -> TaskConfig:
         """The MDP constants the policy must have been trained with.
 
@@ -218,6 +221,7 @@ class LabConfig:
             policy_hz=self.rates.policy_hz,
             observe_platform_velocity=observe_platform_velocity,
             observe_previous_command=observe_previous_command,
+            observe_platform_acceleration=observe_platform_acceleration,
         )
 
     def with_drones(self, num_drones: int, geometry: PlateGeometry | None = None, body: str = "plate") -> LabConfig:

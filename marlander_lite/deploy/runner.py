@@ -94,6 +94,10 @@ class PolicyRunner:
         self.previous_command = np.zeros((task_config.num_drones, 3))
         """The velocity setpoint last sent to each drone under the policy ``(N, 3)`` m/s (zero for a hover), which a
         policy with ``TaskConfig.observe_previous_command`` reads; the mission keeps it up to date."""
+        self.observed_acceleration = PadAcceleration() if task_config.observe_platform_acceleration else None
+        """The pads' acceleration a policy with ``TaskConfig.observe_platform_acceleration`` reads, estimated from the
+        estimates' pad velocities as the simulators estimate it from observed ones; None for other policies."""
+        self._acceleration_at: tuple[float, np.ndarray] | None = None
 
     @property
     def shared(self) -> bool:
@@ -122,12 +126,25 @@ class PolicyRunner:
         )
 
     def observe(self, est: SwarmEstimate) -> np.ndarray:
-        """Eq. 2 for every drone, ``(N, 13)``, with the extras the policy asks for (``(N, 16)`` or ``(N, 19)``: the
-        platform velocity, the previous command), from the estimate predicted :attr:`latency_compensation` ahead."""
+        """Eq. 2 for every drone, ``(N, 13)``, with the extras the policy asks for (up to ``(N, 22)``: the platform
+        velocity, the previous command, the platform acceleration), from the estimate predicted
+        :attr:`latency_compensation` ahead."""
+        acceleration = self.pad_acceleration_estimate(est)
         est = self.ahead(est)
         pad_vel = est.pad_vel if self.task.observe_platform_velocity else None
         command = self.previous_command if self.task.observe_previous_command else None
-        return task.observe(est.pos - est.goal, est.quat, est.vel - est.pad_vel, est.ang_vel, pad_vel, command)
+        return task.observe(
+            est.pos - est.goal, est.quat, est.vel - est.pad_vel, est.ang_vel, pad_vel, command, acceleration
+        )
+
+    def pad_acceleration_estimate(self, est: SwarmEstimate) -> np.ndarray | None:
+        """Each pad's acceleration ``(N, 3)`` m/s^2 for the observation, updated once per estimate time ``est.t``
+        (observing the same estimate twice does not count as a zero-second step); None unless the policy reads it."""
+        if self.observed_acceleration is None:
+            return None
+        if self._acceleration_at is None or self._acceleration_at[0] != est.t:
+            self._acceleration_at = (est.t, self.observed_acceleration.update(est.pad_vel, est.t))
+        return self._acceleration_at[1]
 
     def policy_input(self, obs: np.ndarray, goals: np.ndarray | None = None) -> np.ndarray:
         """What the network reads: ``(1, 13 N)`` for a centralised policy, ``(N, 13 + 7 k)`` for a shared one.

@@ -182,8 +182,9 @@ class EnvOptions:
 
 
 def drone_observation_space(task: TaskConfig) -> spaces.Box:
-    """One drone's eq. 2 observation: ``(13,)`` float32 (``(16,)`` or ``(19,)`` with the platform velocity and the
-    previous command, ``TaskConfig.observe_platform_velocity`` / ``observe_previous_command``)."""
+    """One drone's eq. 2 observation: ``(13,)`` float32, 3 more for each extra the task asks for (the platform
+    velocity, the previous command, the platform acceleration: ``TaskConfig.observe_platform_velocity`` /
+    ``observe_previous_command`` / ``observe_platform_acceleration``)."""
     high = observation_limits(task.obs_per_drone).astype(np.float32)
     return spaces.Box(-high, high, dtype=np.float32)
 

@@ -131,12 +131,12 @@ def split_observation(obs: np.ndarray, num_drones: int) -> tuple[np.ndarray, np.
     """``p`` and ``v`` of every drone from a centralised observation ``(13 N,)``: each ``(N, 3)``.
 
     ``p`` is the position relative to the drone's goal (m), ``v`` the velocity relative to the
-    platform (m/s), as laid out by eq. 2. A ``(16 N,)`` or ``(19 N,)`` observation (with the platform velocity
-    or the previous command, ``TaskConfig.observe_platform_velocity`` / ``observe_previous_command``) is read the
-    same way.
+    platform (m/s), as laid out by eq. 2. A ``(16 N,)``, ``(19 N,)`` or ``(22 N,)`` observation (with the platform
+    velocity, the previous command or the platform acceleration, ``task.OBSERVATION_OPTIONS``) is read the same
+    way.
     """
     o = np.asarray(obs, dtype=np.float64)
-    sizes = tuple((OBS_PER_DRONE + extra) * num_drones for extra in (0, 3, 6))
+    sizes = tuple((OBS_PER_DRONE + extra) * num_drones for extra in (0, 3, 6, 9))
     if o.ndim != 1 or o.shape[0] not in sizes:
         raise ValueError(f"Observation has shape {o.shape}; expected one of {sizes} entries for {num_drones} drone(s).")
     per_drone = o.reshape(num_drones, -1)

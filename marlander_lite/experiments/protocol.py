@@ -181,9 +181,9 @@ class ProtocolConfig:
     def task(self, controller_name: str | None = None) -> TaskConfig:
         """The task of every trial: the defaults with ``num_drones`` and the time limit.
 
-        With ``controller_name``, the observation also carries the platform velocity or the previous command if
-        that controller's policy file asks for them (``TaskConfig.observe_platform_velocity``,
-        ``observe_previous_command``). The trials' starts do not depend on them.
+        With ``controller_name``, the observation also carries the extras that controller's policy file asks for
+        (the platform velocity, the previous command, the platform acceleration: ``task.OBSERVATION_OPTIONS``).
+        The trials' starts do not depend on them.
         """
         observe = self.spec(controller_name).observation_options() if controller_name is not None else {}
         return TaskConfig(num_drones=self.num_drones, episode_seconds=self.time_limit_s, **observe)

@@ -2,9 +2,12 @@
 
 Not in the paper. :class:`~marlander_lite.swarm.safety_filter.SafetyFilterConfig`'s ``pad_lead`` adds ``T_lead``
 times each pad's acceleration to every command, so that a drone whose velocity tracker lags keeps up with a pad
-that brakes, reverses or turns. Neither motion capture nor the policy's observation gives that acceleration; it is
-differenced from the pad velocities the loop already has, which carry noise. The simulators' filter
-(``with_safety_filter``) and the deployment runner each keep one :class:`PadAcceleration`.
+that brakes, reverses or turns. Motion capture does not give that acceleration; it is differenced from the pad
+velocities the loop already has, which carry noise. The simulators' filter (``with_safety_filter``) and the
+deployment runner each keep one :class:`PadAcceleration`. A policy trained with
+``TaskConfig.observe_platform_acceleration`` reads the same estimate: the simulators' episodes
+(:class:`~marlander_lite.episodes.LandingEpisodes`) run :func:`acceleration_step` on the pad velocities the policy
+observed, and the deployment runner a :class:`PadAcceleration` of its own.
 """
 
 from __future__ import annotations
@@ -12,6 +15,29 @@ from __future__ import annotations
 import numpy as np
 
 _EPS = 1e-9
+DEFAULT_LIMIT, DEFAULT_SMOOTHING = 3.0, 0.3
+"""The estimator's clip (m/s^2) and the share of each new difference in its average (see :class:`PadAcceleration`)."""
+
+
+def acceleration_step(
+    estimate: np.ndarray,
+    previous_velocity: np.ndarray,
+    velocity: np.ndarray,
+    gap: float,
+    limit: float = DEFAULT_LIMIT,
+    smoothing: float = DEFAULT_SMOOTHING,
+) -> np.ndarray:
+    """One update of the estimate ``(..., 3)`` m/s^2 from two pad velocities ``(..., 3)`` m/s ``gap`` seconds apart.
+
+    The difference quotient, its norm clipped to ``limit``, enters an exponential average with weight ``smoothing``;
+    where the difference exceeds twice ``limit`` (a new episode or a glitch, no pad's motion) the estimate restarts
+    at zero. Returns a new array.
+    """
+    difference = (velocity - previous_velocity) / gap
+    size = np.linalg.norm(difference, axis=-1, keepdims=True)
+    difference *= np.minimum(1.0, limit / np.maximum(size, _EPS))
+    estimate = estimate + smoothing * (difference - estimate)
+    return np.where(size > 2.0 * limit, 0.0, estimate)
 
 
 class PadAcceleration:
@@ -29,7 +55,9 @@ class PadAcceleration:
         max_gap: longest time between two updates (s) across which a difference is taken.
     """
 
-    def __init__(self, limit: float = 3.0, smoothing: float = 0.3, max_gap: float = 0.5) -> None:
+    def __init__(
+        self, limit: float = DEFAULT_LIMIT, smoothing: float = DEFAULT_SMOOTHING, max_gap: float = 0.5
+    ) -> None:
         if not (limit > 0 and 0 < smoothing <= 1 and max_gap > 0):
             raise ValueError(
                 f"PadAcceleration needs limit > 0, smoothing in (0, 1] and max_gap > 0; got {limit}, {smoothing}, "
@@ -49,10 +77,8 @@ class PadAcceleration:
         if self._velocity is None or self._velocity.shape != velocity.shape or not 0 < gap <= self.max_gap:
             self._estimate = np.zeros_like(velocity)
         else:
-            difference = (velocity - self._velocity) / gap
-            size = np.linalg.norm(difference, axis=-1, keepdims=True)
-            difference *= np.minimum(1.0, self.limit / np.maximum(size, _EPS))
-            estimate = self._estimate + self.smoothing * (difference - self._estimate)
-            self._estimate = np.where(size > 2.0 * self.limit, 0.0, estimate)
+            self._estimate = acceleration_step(
+                self._estimate, self._velocity, velocity, gap, self.limit, self.smoothing
+            )
         self._velocity, self._time = velocity, time
         return self._estimate

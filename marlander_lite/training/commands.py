@@ -44,6 +44,7 @@ KEPT_WHEN_FINE_TUNING = (
     "activation",
     "task.observe_platform_velocity",
     "task.observe_previous_command",
+    "task.observe_platform_acceleration",
 )
 """Fields ``--init-from`` takes from the loaded run (its model is loaded whole): setting them is refused."""
 
