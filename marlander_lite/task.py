@@ -167,8 +167,10 @@ class TaskConfig:
     observe_platform_acceleration: bool = False
     """Beyond the paper: append the platform's acceleration (3 numbers, m/s^2) last, estimated as the deployment loop
     estimates it, from the platform velocities the policy observed (noise and latency included;
-    :func:`~marlander_lite.swarm.pad_acceleration.acceleration_step`). With it a policy can lead a pad that brakes
-    and turns instead of trailing it. Needs ``observe_platform_velocity``."""
+    :func:`~marlander_lite.swarm.pad_acceleration.acceleration_step`), so that a policy could lead a pad that brakes
+    and turns instead of trailing it. Needs ``observe_platform_velocity``. Off in every shipped policy: the ``moving``
+    preset trained with it landed less on moving pads (docs/transfer.md): motion capture's noise is a large share
+    of the estimate."""
 
     def __post_init__(self) -> None:
         checks: list[tuple[bool, str]] = [
