@@ -410,6 +410,19 @@ def test_a_drone_resting_on_a_moving_plate_next_to_its_pad_rides_along(lab):
     world.close()
 
 
+def rehearse_linear_policy(lab, tmp_path, weight, bias, obs_per_drone: int, task: dict[str, bool]):
+    """Rehearse the linear policy ``weight``, ``bias`` for two drones reading ``task``'s extras; the flight log."""
+    contract = PolicyContract(
+        num_drones=2, max_speed=3.0, policy_hz=24.0, activation="relu", hidden_sizes=(),
+        normalize_observations=False, obs_per_drone=obs_per_drone, task=task,
+    )  # fmt: skip
+    path = save_policy(tmp_path / "linear.safetensors", contract, {"actor.0.weight": weight, "actor.0.bias": bias})
+    log_path = tmp_path / "flight.jsonl"
+    result = rehearse(lab, path, log_path=log_path)
+    assert result.mission.success and result.safe, result.summary()
+    return read_flight_log(log_path)
+
+
 def test_a_policy_that_observes_the_pad_acceleration_gets_it_last_in_the_rehearsal(lab, tmp_path):
     """The contract's ``observe_platform_acceleration`` reaches the deployment loop: 19 numbers a drone (eq. 2, the
     pad velocity, the pad acceleration estimated from it), and the P-controller of conftest.py, which reads only
@@ -419,17 +432,8 @@ def test_a_policy_that_observes_the_pad_acceleration_gets_it_last_in_the_rehears
         weight[3 * i : 3 * i + 3, 19 * i : 19 * i + 3] = -np.diag([1.0, 1.0, 0.4])
         bias[3 * i + 2] = -0.4 * 0.05
     task = {"observe_platform_velocity": True, "observe_platform_acceleration": True}
-    contract = PolicyContract(
-        num_drones=2, max_speed=3.0, policy_hz=24.0, activation="relu", hidden_sizes=(),
-        normalize_observations=False, obs_per_drone=19, task=task,
-    )  # fmt: skip
-    path = save_policy(
-        tmp_path / "acceleration.safetensors", contract, {"actor.0.weight": weight, "actor.0.bias": bias}
-    )
-    log_path = tmp_path / "flight.jsonl"
-    result = rehearse(lab, path, log_path=log_path)
-    assert result.mission.success and result.safe, result.summary()
-    seen = [np.asarray(tick["obs"]) for tick in read_flight_log(log_path).ticks if tick["obs"] is not None]
+    log = rehearse_linear_policy(lab, tmp_path, weight, bias, 19, task)
+    seen = [np.asarray(tick["obs"]) for tick in log.ticks if tick["obs"] is not None]
     assert len(seen) > 10 and all(obs.shape == (2, 19) for obs in seen)
     acceleration = np.linalg.norm(np.array(seen)[:, :, 16:19], axis=-1)
     assert np.isfinite(acceleration).all() and acceleration.max() <= 3.0 + 1e-6  # the estimator's clip
@@ -443,17 +447,7 @@ def test_a_policy_that_observes_its_previous_command_reads_the_setpoint_last_sen
         weight[3 * i : 3 * i + 3, 16 * i : 16 * i + 3] = -np.diag([1.0, 1.0, 0.4])
         weight[3 * i : 3 * i + 3, 16 * i + 13 : 16 * i + 16] = -0.25 / 3.0 * np.eye(3)  # m/s back to an action
         bias[3 * i + 2] = -0.4 * 0.05
-    contract = PolicyContract(
-        num_drones=2, max_speed=3.0, policy_hz=24.0, activation="relu", hidden_sizes=(),
-        normalize_observations=False, obs_per_drone=16, task={"observe_previous_command": True},
-    )  # fmt: skip
-    path = save_policy(
-        tmp_path / "previous_command.safetensors", contract, {"actor.0.weight": weight, "actor.0.bias": bias}
-    )
-    log_path = tmp_path / "flight.jsonl"
-    result = rehearse(lab, path, log_path=log_path)
-    assert result.mission.success and result.safe, result.summary()
-    log = read_flight_log(log_path)
+    log = rehearse_linear_policy(lab, tmp_path, weight, bias, 16, {"observe_previous_command": True})
     sent = np.zeros((2, 3))  # what each drone was last told under the policy: nothing yet
     checked = 0
     for tick in log.ticks:
