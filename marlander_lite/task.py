@@ -169,8 +169,8 @@ class TaskConfig:
     estimates it, from the platform velocities the policy observed (noise and latency included;
     :func:`~marlander_lite.swarm.pad_acceleration.acceleration_step`), so that a policy could lead a pad that brakes
     and turns instead of trailing it. Needs ``observe_platform_velocity``. Off in every shipped policy: the ``moving``
-    preset trained with it landed less on moving pads (docs/transfer.md): motion capture's noise is a large share
-    of the estimate."""
+    preset trained with it landed less on moving pads, with motion capture's noise and without it
+    (docs/transfer.md)."""
 
     def __post_init__(self) -> None:
         checks: list[tuple[bool, str]] = [
