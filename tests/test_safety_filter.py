@@ -22,7 +22,7 @@ from marlander_lite.swarm.vec_env import SharedSwarmVecEnv
 
 SHARED = "data/policies/shared-quick-local.safetensors"
 MOVING = "data/policies/moving-smooth-16m.safetensors"
-MOVING_PAD_SETTINGS = {"cone_radius": 0.04, "reaction_time": 0.35, "pad_lead": 0.2}
+PAD_LEAD_SETTINGS = {"cone_radius": 0.04, "reaction_time": 0.35, "pad_lead": 0.2}
 """The lab guide's filter settings for moving pads before the latency compensation joined them (2026-11-26)."""
 ONLY_SEPARATION = SafetyFilterConfig(sidestep=0.0, wake_slope=0.0)
 
@@ -239,7 +239,7 @@ def test_centralised_policy_through_the_filter_follows_a_fast_pad() -> None:
     alone = evaluate_cell("centralised", 2, 40, seed=0, policy_path=MOVING, num_envs=40, platform=fast_arc)
     guarded = evaluate_cell(
         "centralised-filter", 2, 40, seed=0, policy_path=MOVING, num_envs=40, platform=fast_arc,
-        filter_settings=MOVING_PAD_SETTINGS,
+        filter_settings=PAD_LEAD_SETTINGS,
     )  # fmt: skip
     assert alone.summary.success_rate <= 0.5
     assert guarded.summary.success_rate >= 0.8
