@@ -15,6 +15,7 @@ from typing import Protocol
 import numpy as np
 
 from marlander_lite import task, training_aids
+from marlander_lite.observation_history import ObservationHistory
 from marlander_lite.platforms import PlatformConfig
 from marlander_lite.rotations import vector_norm
 from marlander_lite.sensing import ObservationChannel, SensingConfig
@@ -148,7 +149,7 @@ class LandingEpisodes:
         exact = 3 if self.task.observe_previous_command else 0
         # The pad acceleration is appended after the channel: it is estimated from what the channel let through.
         self._observes_acceleration = self.task.observe_platform_acceleration
-        channel_width = self.task.obs_per_drone - 3 * self._observes_acceleration
+        channel_width = self.task.frame_per_drone - 3 * self._observes_acceleration
         self.channel = ObservationChannel(self.sensing, e, n, self.task.dt, channel_width, exact)
         # A landed drone's centre rests landed_height above its pad along the pad normal: that is eq. 2's goal.
         self._goal_lift = self.task.landed_height * self.pad_normal
@@ -167,6 +168,8 @@ class LandingEpisodes:
         """Each pad's acceleration ``(num_envs, N, 3)`` m/s^2 as estimated from the observed pad velocities, zero after
         a reset: observed last with ``TaskConfig.observe_platform_acceleration``, as the deployment loop does."""
         self._seen_pad_vel = np.zeros((e, n, 3))
+        # The frames are stacked last, from what the policy would see now (TaskConfig.observation_history).
+        self.history = ObservationHistory(self.task.observation_history, (e, n), self.task.frame_per_drone)
 
     def seed(self, seed: int | None) -> None:
         """Restart the random generator: the same seed gives the same resets and noise."""
@@ -174,7 +177,8 @@ class LandingEpisodes:
 
     def true_observations(self) -> np.ndarray:
         """Eq. 2 observations of the current state without noise or latency, ``(num_envs, N, 13)`` (and the extras
-        the task asks for; the pad acceleration is the current estimate, which exists only from observations)."""
+        the task asks for; the pad acceleration is the current estimate, which exists only from observations). One
+        frame: with ``TaskConfig.observation_history`` the older frames are those the policy saw."""
         return self._with_acceleration(self._measure(self.sim.state(), self.previous_command)[2])
 
     def _with_acceleration(self, obs: np.ndarray, env_ids: np.ndarray | slice = slice(None)) -> np.ndarray:
@@ -228,7 +232,7 @@ class LandingEpisodes:
         if self._observes_acceleration:
             self.pad_acceleration[ids] = 0.0
             self._seen_pad_vel[ids] = seen[..., PLATFORM_VELOCITY]
-        return self._with_acceleration(seen, ids)
+        return self.history.reset(self._with_acceleration(seen, ids), ids)
 
     def step(self, action: np.ndarray) -> StepOutcome:
         """Apply normalised actions (eq. 3) in every env and evaluate the MDP.
@@ -274,7 +278,7 @@ class LandingEpisodes:
         self.prev_dist = dist
         self.episode_return += reward
         return StepOutcome(
-            obs=self._estimate_acceleration(self.channel.observe(obs, self.rng)),
+            obs=self.history.push(self._estimate_acceleration(self.channel.observe(obs, self.rng))),
             reward=reward,
             drone_rewards=r_drones,
             terminated=terminated,

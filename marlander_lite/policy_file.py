@@ -46,6 +46,7 @@ from safetensors.numpy import load_file, save_file
 
 from marlander_lite.task import (
     ACT_PER_DRONE,
+    MAX_OBSERVATION_HISTORY,
     OBS_LIMITS,
     OBS_PER_DRONE,
     OBSERVATION_OPTIONS,
@@ -107,9 +108,10 @@ class PolicyContract:
     """Widths of the hidden layers of the actor."""
     normalize_observations: Annotated[bool, Strict()]
     """Whether ``obs_mean``/``obs_var`` tensors standardise the input (VecNormalize statistics)."""
-    obs_per_drone: Literal[13, 16, 19, 22] = OBS_PER_DRONE
-    """Numbers per drone in the input: 13 (eq. 2), 3 more for each of the platform velocity, the previous command
-    and the platform acceleration (``task`` says which)."""
+    obs_per_drone: Annotated[int, Strict(), Field(ge=OBS_PER_DRONE, le=22 * MAX_OBSERVATION_HISTORY)] = OBS_PER_DRONE
+    """Numbers per drone in the input: one frame of 13 (eq. 2), 3 more for each of the platform velocity, the
+    previous command and the platform acceleration, times the frames of ``observation_history`` (``task`` says
+    which)."""
     obs_clip: Annotated[Real, Field(gt=0, le=1e6)] = 10.0
     """Standardised inputs are clipped to +-obs_clip."""
     obs_epsilon: Annotated[Real, Field(ge=0, le=1)] = 1e-8
@@ -156,29 +158,38 @@ class PolicyContract:
                 "num_drones is null but neighbours is not set: neither a centralised nor a shared policy"
             )
 
-    def observation_options(self) -> dict[str, bool]:
-        """The ``TaskConfig`` fields that shape this policy's input (:data:`~marlander_lite.task.OBSERVATION_OPTIONS`),
-        read from :attr:`task` (files written before the previous command or the platform acceleration could be
-        observed lack them: False; a contract without ``task`` at all: 16 numbers per drone mean the platform
-        velocity)."""
+    def observation_options(self) -> dict[str, bool | int]:
+        """The ``TaskConfig`` fields that shape this policy's input (:data:`~marlander_lite.task.OBSERVATION_OPTIONS`
+        and ``observation_history``), read from :attr:`task` (files written before the previous command, the
+        platform acceleration or histories lack them: False, and one frame; a contract without ``task`` at all: 16
+        numbers per drone mean the platform velocity)."""
+        history = self.task.get("observation_history", 1)
+        if isinstance(history, bool) or not isinstance(history, int) or not 1 <= history <= MAX_OBSERVATION_HISTORY:
+            raise PolicyFileError(
+                f"task.observation_history must be an integer from 1 to {MAX_OBSERVATION_HISTORY}, got {history!r}"
+            )
         command = bool(self.task.get("observe_previous_command", False))
         acceleration = bool(self.task.get("observe_platform_acceleration", False))
         platform = self.task.get("observe_platform_velocity")
         if platform is None:
-            platform = self.obs_per_drone - 3 * (command + acceleration) > OBS_PER_DRONE
+            platform = self.obs_per_drone // history - 3 * (command + acceleration) > OBS_PER_DRONE
         return {
             "observe_platform_velocity": bool(platform),
             "observe_previous_command": command,
             "observe_platform_acceleration": acceleration,
+            "observation_history": history,
         }
 
     def check_observation(self) -> None:
         """Raise :class:`PolicyFileError` unless ``obs_per_drone`` is what :meth:`observation_options` ask for."""
         options = self.observation_options()
-        expected = OBS_PER_DRONE + 3 * sum(options.values())
+        history = int(options["observation_history"])
+        expected = (OBS_PER_DRONE + 3 * sum(bool(options[name]) for name in OBSERVATION_OPTIONS)) * history
         if self.obs_per_drone != expected:
+            frames = f" in {history} frames" if history > 1 else ""
             raise PolicyFileError(
-                f"obs_per_drone is {self.obs_per_drone}, but the task's {options} make {expected} numbers per drone"
+                f"obs_per_drone is {self.obs_per_drone}, but the task's {options} make {expected} numbers per "
+                f"drone{frames}"
             )
 
     def require_centralised(self, where: str) -> None:
@@ -212,7 +223,8 @@ class PolicyContract:
         if not np.isclose(self.max_speed, task.max_speed):
             problems.append(f"its max_speed is {self.max_speed} m/s, the task's is {task.max_speed} m/s")
         # Compared by name, not only by count: 16 numbers may be the platform velocity or the previous command.
-        wanted, given = self.observation_options(), {name: getattr(task, name) for name in OBSERVATION_OPTIONS}
+        wanted = self.observation_options()
+        given = {name: getattr(task, name) for name in wanted}
         if wanted != given:
             differ = ", ".join(
                 f"{name} (policy {wanted[name]}, task {given[name]})" for name in wanted if wanted[name] != given[name]
@@ -269,7 +281,8 @@ class MLPPolicy:
 def observation_bounds(contract: PolicyContract) -> np.ndarray:
     """``(obs_dim,)`` half-widths of the observation space: observations are clipped to ``task.OBS_LIMITS``."""
     p, _, v, _ = OBS_LIMITS
-    per_drone = observation_limits(contract.obs_per_drone)
+    history = int(contract.observation_options()["observation_history"])
+    per_drone = observation_limits(contract.obs_per_drone // history, history)
     if contract.neighbours is not None:  # neighbours' relative position and velocity span twice the bounds
         neighbour = np.repeat([2 * p, 2 * v, 1.0], [3, 3, 1])
         return np.concatenate([per_drone, np.tile(neighbour, contract.neighbours)])

@@ -46,17 +46,21 @@ OBS_LIMITS = (20.0, 1.0, 50.0, 200.0)
 them. Only a crash or a drone far outside the arena reaches them."""
 
 
+MAX_OBSERVATION_HISTORY = 8
+"""The most frames ``TaskConfig.observation_history`` may stack."""
+
 OBSERVATION_OPTIONS = ("observe_platform_velocity", "observe_previous_command", "observe_platform_acceleration")
 """The ``TaskConfig`` switches that append to eq. 2's observation (3 numbers each, in this order): a policy
 file's choice, which every simulator and the deployment loop follow."""
 
 
-def observation_limits(obs_per_drone: int) -> np.ndarray:
-    """Half-widths of one drone's observation ``(obs_per_drone,)``: eq. 2's four parts bounded by
+def observation_limits(frame_per_drone: int, history: int = 1) -> np.ndarray:
+    """Half-widths of one drone's observation ``(frame_per_drone * history,)``: eq. 2's four parts bounded by
     :data:`OBS_LIMITS`, then the extras (platform velocity, previous command, platform acceleration), each bounded
-    like a velocity (the acceleration estimate never exceeds 3 m/s^2)."""
+    like a velocity (the acceleration estimate never exceeds 3 m/s^2); repeated for each of the ``history`` frames
+    (``TaskConfig.observation_history``)."""
     p, q, v, w = OBS_LIMITS
-    return np.repeat(np.array([p, q, v, w, v]), [3, 4, 3, 3, 9])[:obs_per_drone]
+    return np.tile(np.repeat(np.array([p, q, v, w, v]), [3, 4, 3, 3, 9])[:frame_per_drone], history)
 
 
 CONTACT_NONE, CONTACT_OWN_PAD, CONTACT_OTHER = 0, 1, 2
@@ -171,6 +175,12 @@ class TaskConfig:
     and turns instead of trailing it. Needs ``observe_platform_velocity``. Off in every shipped policy: the ``moving``
     preset trained with it landed less on moving pads, with motion capture's noise and without it
     (docs/transfer.md)."""
+    observation_history: int = 1
+    """Beyond the paper: ``H``, how many of a drone's latest observation frames its observation holds, newest first
+    (``H`` times :attr:`frame_per_drone` numbers; 1 to 8). A memoryless policy sees one instant; a few frames show it
+    how the drone answered its last commands (a sluggish tracker, a late one) and how the pad's velocity changes:
+    the short state history of [Hwangbo2019], which [Kumar2021] reads to adapt to unknown dynamics
+    (docs/references.md). After a reset every slot holds the first frame. 1 keeps the paper's single frame."""
 
     def __post_init__(self) -> None:
         checks: list[tuple[bool, str]] = [
@@ -222,6 +232,12 @@ class TaskConfig:
                 "observe_platform_velocity=True",
             ),
             (
+                isinstance(self.observation_history, int | np.integer)
+                and not isinstance(self.observation_history, bool)
+                and 1 <= self.observation_history <= MAX_OBSERVATION_HISTORY,
+                f"observation_history must be an integer from 1 to {MAX_OBSERVATION_HISTORY} (frames)",
+            ),
+            (
                 0.0 < self.spawn_near_pad_height_min < 1.0,
                 "spawn_near_pad_height_min must be above 0 m and below 1 m (the highest near-pad start)",
             ),
@@ -245,10 +261,15 @@ class TaskConfig:
         return round(self.episode_seconds * self.policy_hz)
 
     @property
-    def obs_per_drone(self) -> int:
-        """Length of one drone's observation: 13 (eq. 2), plus 3 for each of ``observe_platform_velocity``,
-        ``observe_previous_command`` and ``observe_platform_acceleration``."""
+    def frame_per_drone(self) -> int:
+        """Length of one observation frame of one drone: 13 (eq. 2), plus 3 for each of
+        ``observe_platform_velocity``, ``observe_previous_command`` and ``observe_platform_acceleration``."""
         return OBS_PER_DRONE + 3 * sum(bool(getattr(self, name)) for name in OBSERVATION_OPTIONS)
+
+    @property
+    def obs_per_drone(self) -> int:
+        """Length of one drone's observation: :attr:`frame_per_drone` times ``observation_history``."""
+        return self.frame_per_drone * int(self.observation_history)
 
     @property
     def obs_dim(self) -> int:

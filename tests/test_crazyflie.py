@@ -405,7 +405,10 @@ def test_drone_placed_on_the_floor_rests_there_and_reports_the_contact():
 MOVING_EXTRAS = {"observe_platform_velocity": True, "observe_platform_acceleration": True}
 
 
-@pytest.mark.parametrize("options", [{}, {"platform": "moving-arc", "task": MOVING_EXTRAS}])
+@pytest.mark.parametrize(
+    "options",
+    [{}, {"platform": "moving-arc", "task": MOVING_EXTRAS}, {"task": {**MOVING_EXTRAS, "observation_history": 3}}],
+)
 def test_gymnasium_and_sb3_checkers_pass(options):
     env = gym.make(ENV_ID, num_drones=2, **options)
     gym_check_env(env.unwrapped, skip_render_check=True)

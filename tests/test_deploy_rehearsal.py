@@ -5,6 +5,7 @@ their motors run), not against the loop's own beliefs.
 """
 
 import dataclasses
+import itertools
 import json
 import math
 from pathlib import Path
@@ -438,6 +439,22 @@ def test_a_policy_that_observes_the_pad_acceleration_gets_it_last_in_the_rehears
     acceleration = np.linalg.norm(np.array(seen)[:, :, 16:19], axis=-1)
     assert np.isfinite(acceleration).all() and acceleration.max() <= 3.0 + 1e-6  # the estimator's clip
     assert acceleration.max() > 0  # motion capture's noise on a still plate: estimated, not left at zero
+
+
+def test_a_policy_that_reads_a_history_gets_its_frames_newest_first_in_the_rehearsal(lab, tmp_path):
+    """The contract's ``observation_history`` reaches the deployment loop: three frames of 13 numbers a drone, each
+    policy step's older frames the previous steps' newer ones; the P-controller of conftest.py on the newest frame
+    lands both drones."""
+    weight, bias = np.zeros((6, 78)), np.zeros(6)
+    for i in range(2):
+        weight[3 * i : 3 * i + 3, 39 * i : 39 * i + 3] = -np.diag([1.0, 1.0, 0.4])
+        bias[3 * i + 2] = -0.4 * 0.05
+    log = rehearse_linear_policy(lab, tmp_path, weight, bias, 39, {"observation_history": 3})
+    seen = [np.asarray(tick["obs"]) for tick in log.ticks if tick["obs"] is not None]
+    assert len(seen) > 10 and all(obs.shape == (2, 39) for obs in seen)
+    np.testing.assert_array_equal(seen[0][:, 13:26], seen[0][:, :13])  # the first frame fills every slot
+    for before, now in itertools.pairwise(seen):
+        np.testing.assert_array_equal(now[:, 13:39], before[:, :26])
 
 
 def test_a_policy_that_observes_its_previous_command_reads_the_setpoint_last_sent(lab, tmp_path):

@@ -245,6 +245,26 @@ def test_the_runner_observes_the_pad_acceleration_as_the_simulators_estimate_it(
     assert PolicyRunner(HeadOn(), TaskConfig(num_drones=2), max_speed=1.0).observe(est).shape == (2, 13)
 
 
+def test_the_runner_stacks_one_frame_per_policy_step_as_the_simulators_do():
+    """With ``observation_history`` 3 the runner hands the policy its last three frames, newest first: the first
+    frame in every slot, then one new frame per new estimate time; the same instant observed again changes none of
+    the older slots."""
+    history = TaskConfig(num_drones=2, observe_platform_velocity=True, observation_history=3)
+    single = TaskConfig(num_drones=2, observe_platform_velocity=True)
+    runner, reference = PolicyRunner(HeadOn(), history, max_speed=1.0), PolicyRunner(HeadOn(), single, max_speed=1.0)
+    frames = []
+    for k in range(6):
+        est = dataclasses.replace(
+            estimate(HEAD_ON), t=k * history.dt, pos=estimate(HEAD_ON).pos + np.array([0, 0, 0.1 * k])
+        )
+        frames.insert(0, reference.observe(est))
+        expected = np.concatenate((frames + [frames[-1]] * 2)[:3], axis=-1)
+        obs = runner.observe(est)
+        assert obs.shape == (2, 48)
+        np.testing.assert_array_equal(obs, expected)
+        np.testing.assert_array_equal(runner.observe(est), obs)  # the same estimate twice: the history stays
+
+
 def test_the_runner_keeps_a_head_on_pair_to_the_rule():
     runner = PolicyRunner(HeadOn(), TaskConfig(num_drones=2), max_speed=1.0, safety_filter=CONFIG)
     est = estimate(HEAD_ON)

@@ -245,6 +245,30 @@ def test_the_pad_acceleration_is_estimated_from_the_observed_pad_velocities():
     assert np.abs(noisy.pad_acceleration[0]).max() > 0  # the other envs keep theirs
 
 
+def test_a_history_holds_the_frames_the_policy_saw_newest_first():
+    # Two twins with the same seed, one frame and three: the history consumes no random numbers, so the stacked
+    # observation is the single-frame twin's last three observations, the first one repeated after a reset.
+    extras = {"observe_platform_velocity": True, "observe_previous_command": True}
+    twins = [
+        make_episodes(3, 2, "moving-arc", sensing=SensingConfig.vicon(), **extras, observation_history=h)[1]
+        for h in (1, 3)
+    ]
+    single, stacked = (twin.reset() for twin in twins)
+    assert stacked.shape == (3, 2, 57)
+    frames = [single] * 3  # after a reset every slot holds the first frame
+    actions = np.random.default_rng(0).uniform(-1, 1, (40, 3, 6))
+    for k, action in enumerate(actions):
+        if k == 25:  # env 1 starts over in both twins: its history restarts, the others' goes on
+            reset_single, reset_stacked = (twin.reset(np.array([1])) for twin in twins)
+            np.testing.assert_array_equal(reset_stacked, np.tile(reset_single, 3))
+            frames = [f.copy() for f in frames]
+            for f in frames:
+                f[1] = reset_single[0]
+        single, stacked = (twin.step(action).obs for twin in twins)
+        frames = [single, *frames[:2]]
+        np.testing.assert_array_equal(stacked, np.concatenate(frames, axis=-1))
+
+
 def test_position_noise_has_the_configured_spread():
     _, episodes = make_episodes(num_envs=2000, sensing=SensingConfig(pos_noise_std=0.01))
     outcome = episodes.step(np.zeros((2000, 3)))
@@ -261,6 +285,7 @@ def test_position_noise_has_the_configured_spread():
         {},
         {"observe_platform_velocity": True, "observe_previous_command": True},
         {"observe_platform_velocity": True, "observe_platform_acceleration": True},
+        {"observe_platform_velocity": True, "observation_history": 3},
     ],
 )
 def test_gymnasium_and_sb3_checkers_pass(extras):
@@ -275,6 +300,9 @@ def test_pettingzoo_checkers_pass():
         num_cycles=300,
     )
     parallel_api_test(marlander_lite.make_parallel_env("pointmass", num_drones=3), num_cycles=300)
+    parallel_api_test(
+        marlander_lite.make_parallel_env("pointmass", num_drones=3, task={"observation_history": 2}), num_cycles=100
+    )
     parallel_seed_test(lambda: marlander_lite.make_parallel_env("pointmass", num_drones=3))
 
 

@@ -18,10 +18,11 @@ from marlander_lite.policy_file import (
     PolicyContract,
     PolicyFileError,
     load_policy,
+    observation_bounds,
     read_contract,
     save_policy,
 )
-from marlander_lite.task import TaskConfig
+from marlander_lite.task import OBSERVATION_OPTIONS, TaskConfig
 from marlander_lite.training.export import export_policy
 
 
@@ -175,7 +176,10 @@ def test_zero_variance_without_epsilon_and_overflowing_weights_are_refused(tmp_p
         ({"normalize_observations": 1}, r"normalize_observations: Input should be a valid boolean"),
         ({"hidden_sizes": [8.5]}, r"hidden_sizes.0: Input should be a valid integer"),
         ({"hidden_sizes": "8"}, r"hidden_sizes: Input should be a valid tuple"),
-        ({"obs_per_drone": 14}, r"obs_per_drone: Input should be 13, 16, 19 or 22"),
+        ({"obs_per_drone": 12}, r"obs_per_drone: Input should be greater than or equal to 13"),
+        ({"obs_per_drone": 177}, r"obs_per_drone: Input should be less than or equal to 176"),
+        ({"obs_per_drone": 14}, r"obs_per_drone is 14, but the task's .* make 16 numbers per drone"),
+        ({"task": {"observation_history": 0}}, r"task.observation_history must be an integer from 1 to 8, got 0"),
         ({"obs_clip": -1.0}, r"obs_clip: Input should be greater than 0"),
         ({"surprise": 1}, r"surprise: unknown field"),
     ],
@@ -284,11 +288,12 @@ def test_the_task_says_what_the_observation_holds_beyond_eq2(tmp_path):
             normalize_observations=False, obs_per_drone=obs_per_drone, task=task,
         )  # fmt: skip
 
-    def options(platform: bool, command: bool, acceleration: bool = False) -> dict[str, bool]:
+    def options(platform: bool, command: bool, acceleration: bool = False, history: int = 1) -> dict[str, bool | int]:
         return {
             "observe_platform_velocity": platform,
             "observe_previous_command": command,
             "observe_platform_acceleration": acceleration,
+            "observation_history": history,
         }
 
     # a file of v0.2 and earlier: 16 numbers per drone and no word on the previous command mean the platform velocity
@@ -300,7 +305,7 @@ def test_the_task_says_what_the_observation_holds_beyond_eq2(tmp_path):
     task = TaskConfig(num_drones=1, **both.observation_options())
     assert task.obs_per_drone == 19
     both.check_compatible(task)
-    every = contract(22, **dict.fromkeys(options(True, True, True), True))
+    every = contract(22, **dict.fromkeys(OBSERVATION_OPTIONS, True))
     assert every.observation_options() == options(True, True, True)
     every.check_compatible(TaskConfig(num_drones=1, **every.observation_options()))
     with pytest.raises(PolicyFileError, match=r"observe_platform_acceleration \(policy True, task False\) differs"):
@@ -319,3 +324,31 @@ def test_the_task_says_what_the_observation_holds_beyond_eq2(tmp_path):
     path = write_raw(tmp_path / "bad.safetensors", fields, tensors)
     with pytest.raises(PolicyFileError, match=r"obs_per_drone is 16, but the task's .* make 19 numbers per drone"):
         load_policy(path)
+
+
+def test_a_history_of_frames_multiplies_the_input_and_must_match_the_task(tmp_path):
+    fields = dict(
+        num_drones=1, max_speed=3.0, policy_hz=24.0, activation="relu", hidden_sizes=(),
+        normalize_observations=False,
+    )  # fmt: skip
+    task = {"observe_platform_velocity": True, "observation_history": 3}
+    stacked = PolicyContract(**fields, obs_per_drone=48, task=task)
+    assert stacked.observation_options()["observation_history"] == 3
+    stacked.check_observation()
+    stacked.check_compatible(TaskConfig(num_drones=1, observe_platform_velocity=True, observation_history=3))
+    with pytest.raises(PolicyFileError, match=r"observation_history \(policy 3, task 1\) differs"):
+        stacked.check_compatible(TaskConfig(num_drones=1, observe_platform_velocity=True))
+    # a file with three frames of velocity and 16 numbers per drone cannot be what the task says
+    tensors = {"actor.0.weight": np.zeros((3, 16)), "actor.0.bias": np.zeros(3)}
+    path = write_raw(
+        tmp_path / "bad.safetensors", asdict(PolicyContract(**fields, obs_per_drone=16, task=task)), tensors
+    )
+    with pytest.raises(PolicyFileError, match=r"obs_per_drone is 16, .* make 48 numbers per drone in 3 frames"):
+        load_policy(path)
+    # the bounds of the input repeat one frame's, frame after frame
+    bounds = observation_bounds(stacked)
+    assert (
+        bounds.shape == (48,)
+        and np.array_equal(bounds[:16], bounds[16:32])
+        and np.array_equal(bounds[:16], bounds[32:])
+    )

@@ -44,6 +44,14 @@ def test_the_extras_follow_eq2_platform_velocity_first():
         TaskConfig(observe_platform_acceleration=True)
 
 
+def test_a_history_multiplies_the_frame_and_is_bounded():
+    stacked = TaskConfig(observe_platform_velocity=True, observation_history=3)
+    assert (stacked.frame_per_drone, stacked.obs_per_drone, stacked.obs_dim) == (16, 48, 96)
+    for bad in (0, 9, 2.0, True):
+        with pytest.raises(ValueError, match=r"observation_history must be an integer from 1 to 8 \(frames\)"):
+            TaskConfig(observation_history=bad)
+
+
 def test_batched_observation_flattens_drone_by_drone():
     e, n = 3, 2
     rel_pos = np.arange(e * n * 3, dtype=float).reshape(e, n, 3)

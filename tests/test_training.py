@@ -161,16 +161,16 @@ def test_fine_tuning_continues_a_run_with_its_drones_observation_and_networks(tm
     from marlander_lite.training.train import continue_from
 
     extras = ("observe_platform_velocity", "observe_previous_command", "observe_platform_acceleration")
-    task = {**EASY_TASK, **dict.fromkeys(extras, True)}
+    task = {**EASY_TASK, **dict.fromkeys(extras, True), "observation_history": 2}
     source = train(tiny(2048, num_drones=1, task=task, net_arch=(32, 16)), tmp_path / "one")
     config = continue_from(tiny(2048), source.root)  # the preset says 64-64; the loaded model is 32-16
     assert config.num_drones == 1 and config.init_from == str(source.root)
-    assert all(config.task[name] for name in extras)
+    assert all(config.task[name] for name in extras) and config.task["observation_history"] == 2
     assert tuple(config.net_arch) == (32, 16)
     files = train(config, tmp_path / "more")
     assert json.loads(files.config.read_text())["train"]["net_arch"] == [32, 16]
     contract = load_policy(files.policy).contract
-    assert contract.obs_dim == 22 and contract.hidden_sizes == (32, 16)
+    assert contract.obs_dim == 44 and contract.hidden_sizes == (32, 16)
     assert json.loads(files.config.read_text())["finished"]["steps"] >= 4096  # counted on from the source run
     with pytest.raises(FileNotFoundError, match="not a finished training run"):
         continue_from(tiny(2048), tmp_path / "nothing")

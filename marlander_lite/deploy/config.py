@@ -209,6 +209,7 @@ class LabConfig:
         observe_platform_velocity: bool = False,
         observe_previous_command: bool = False,
         observe_platform_acceleration: bool = False,
+        observation_history: int = 1,
     ) -> TaskConfig:
         """The MDP constants the policy must have been trained with.
 
@@ -222,6 +223,7 @@ class LabConfig:
             observe_platform_velocity=observe_platform_velocity,
             observe_previous_command=observe_previous_command,
             observe_platform_acceleration=observe_platform_acceleration,
+            observation_history=observation_history,
         )
 
     def with_drones(self, num_drones: int, geometry: PlateGeometry | None = None, body: str = "plate") -> LabConfig:

@@ -37,6 +37,7 @@ import numpy as np
 
 from marlander_lite import task
 from marlander_lite.deploy.estimation import SwarmEstimate
+from marlander_lite.observation_history import ObservationHistory
 from marlander_lite.swarm.observation import shared_observations
 from marlander_lite.swarm.pad_acceleration import PadAcceleration
 from marlander_lite.swarm.safety_filter import SafetyFilterConfig, filter_commands
@@ -98,6 +99,12 @@ class PolicyRunner:
         """The pads' acceleration a policy with ``TaskConfig.observe_platform_acceleration`` reads, estimated from the
         estimates' pad velocities as the simulators estimate it from observed ones; None for other policies."""
         self._acceleration_at: tuple[float, np.ndarray] | None = None
+        self.history = ObservationHistory(
+            task_config.observation_history, (task_config.num_drones,), task_config.frame_per_drone
+        )
+        """The latest frames a policy with ``TaskConfig.observation_history`` reads: one frame per policy step (each
+        new estimate time), the first frame in every slot at the first step, as after a reset in the simulators."""
+        self._history_at: float | None = None
 
     @property
     def shared(self) -> bool:
@@ -128,14 +135,26 @@ class PolicyRunner:
     def observe(self, est: SwarmEstimate) -> np.ndarray:
         """Eq. 2 for every drone, ``(N, 13)``, with the extras the policy asks for (up to ``(N, 22)``: the platform
         velocity, the previous command, the platform acceleration), from the estimate predicted
-        :attr:`latency_compensation` ahead."""
+        :attr:`latency_compensation` ahead; with ``TaskConfig.observation_history`` ``H`` such frames, newest first
+        (``(N, 22 H)``), the history advanced once per estimate time ``est.t``."""
         acceleration = self.pad_acceleration_estimate(est)
-        est = self.ahead(est)
+        t, est = est.t, self.ahead(est)
         pad_vel = est.pad_vel if self.task.observe_platform_velocity else None
         command = self.previous_command if self.task.observe_previous_command else None
-        return task.observe(
+        frame = task.observe(
             est.pos - est.goal, est.quat, est.vel - est.pad_vel, est.ang_vel, pad_vel, command, acceleration
         )
+        if self.history.history == 1:
+            return frame
+        if self._history_at is None:
+            stacked = self.history.reset(frame)
+        elif self._history_at != t:
+            stacked = self.history.push(frame)
+        else:  # the same instant observed again: this frame replaces the newest, the older ones stay
+            self.history.stacked[..., : self.history.frame] = frame
+            stacked = self.history.stacked.copy()
+        self._history_at = t
+        return stacked
 
     def pad_acceleration_estimate(self, est: SwarmEstimate) -> np.ndarray | None:
         """Each pad's acceleration ``(N, 3)`` m/s^2 for the observation, updated once per estimate time ``est.t``

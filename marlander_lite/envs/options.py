@@ -184,8 +184,8 @@ class EnvOptions:
 def drone_observation_space(task: TaskConfig) -> spaces.Box:
     """One drone's eq. 2 observation: ``(13,)`` float32, 3 more for each extra the task asks for (the platform
     velocity, the previous command, the platform acceleration: ``TaskConfig.observe_platform_velocity`` /
-    ``observe_previous_command`` / ``observe_platform_acceleration``)."""
-    high = observation_limits(task.obs_per_drone).astype(np.float32)
+    ``observe_previous_command`` / ``observe_platform_acceleration``), times ``observation_history`` frames."""
+    high = observation_limits(task.frame_per_drone, task.observation_history).astype(np.float32)
     return spaces.Box(-high, high, dtype=np.float32)
 
 
@@ -196,7 +196,7 @@ def drone_action_space() -> spaces.Box:
 
 def centralised_observation_space(task: TaskConfig) -> spaces.Box:
     """The paper's flattened input: ``(13 N,)`` float32 (``(16 N,)`` or ``(19 N,)`` with the extras)."""
-    high = np.tile(observation_limits(task.obs_per_drone).astype(np.float32), task.num_drones)
+    high = np.tile(drone_observation_space(task).high, task.num_drones)
     return spaces.Box(-high, high, dtype=np.float32)
 
 

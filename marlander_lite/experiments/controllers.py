@@ -207,7 +207,7 @@ class ControllerSpec:
     def __post_init__(self) -> None:
         check_controller_name(self.name)
 
-    def observation_options(self) -> dict[str, bool]:
+    def observation_options(self) -> dict[str, bool | int]:
         """What this controller's policy file asks for in the observation beyond eq. 2 (``TaskConfig`` fields;
         see ``PolicyContract.observation_options``); nothing for the baseline."""
         path = self.resolved_policy_path

@@ -45,6 +45,7 @@ KEPT_WHEN_FINE_TUNING = (
     "task.observe_platform_velocity",
     "task.observe_previous_command",
     "task.observe_platform_acceleration",
+    "task.observation_history",
 )
 """Fields ``--init-from`` takes from the loaded run (its model is loaded whole): setting them is refused."""
 

@@ -220,7 +220,8 @@ def continue_from(config: TrainConfig, run_dir: str | Path) -> TrainConfig:
             "pass a directory written by 'marlander train'."
         )
     source = TrainConfig.from_dict(read_run_record(files, "--init-from")["train"])
-    observe = {name: bool(source.task.get(name, False)) for name in OBSERVATION_OPTIONS}
+    observe: dict[str, bool | int] = {name: bool(source.task.get(name, False)) for name in OBSERVATION_OPTIONS}
+    observe["observation_history"] = int(source.task.get("observation_history", 1))
     task = {**config.task, **observe}
     # The model is loaded whole from model.zip, so its networks are the source's; the saved config must say so.
     networks = {"net_arch": source.net_arch, "critic_arch": source.critic_arch, "activation": source.activation}
