@@ -180,7 +180,8 @@ class TaskConfig:
     (``H`` times :attr:`frame_per_drone` numbers; 1 to 8). A memoryless policy sees one instant; a few frames show it
     how the drone answered its last commands (a sluggish tracker, a late one) and how the pad's velocity changes:
     the short state history of [Hwangbo2019], which [Kumar2021] reads to adapt to unknown dynamics
-    (docs/references.md). After a reset every slot holds the first frame. 1 keeps the paper's single frame."""
+    (docs/references.md). After a reset every slot holds the first frame. 1 keeps the paper's single frame;
+    ``data/policies/moving-history-24m.safetensors`` reads 3 frames with the previous command (docs/transfer.md)."""
 
     def __post_init__(self) -> None:
         checks: list[tuple[bool, str]] = [
