@@ -45,3 +45,11 @@ class ObservationHistory:
         self.stacked[..., f:] = self.stacked[..., :-f].copy()
         self.stacked[..., :f] = frames
         return self.stacked.copy()
+
+    def replace_newest(self, frames: np.ndarray) -> np.ndarray:
+        """Put ``frames`` in the newest slot of the whole batch (the same instant observed again; the older slots
+        stay) and return the stack."""
+        if self.history == 1:
+            return frames
+        self.stacked[..., : self.frame] = frames
+        return self.stacked.copy()

@@ -151,8 +151,7 @@ class PolicyRunner:
         elif self._history_at != t:
             stacked = self.history.push(frame)
         else:  # the same instant observed again: this frame replaces the newest, the older ones stay
-            self.history.stacked[..., : self.history.frame] = frame
-            stacked = self.history.stacked.copy()
+            stacked = self.history.replace_newest(frame)
         self._history_at = t
         return stacked
 
