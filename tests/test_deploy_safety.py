@@ -17,17 +17,26 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from marlander_lite.deploy.config import EXAMPLE_CONFIG, GeofenceConfig, LabConfig, SimulationConfig, load_lab_config
+from marlander_lite.deploy.config import (
+    EXAMPLE_CONFIG,
+    GeofenceConfig,
+    LabConfig,
+    SimulationConfig,
+    load_lab_config,
+    load_lab_policy,
+)
 from marlander_lite.deploy.rehearsal import rehearse
 from marlander_lite.deploy.rehearsal.faults import FaultSpec
 from marlander_lite.deploy.safety import (
     BRAKE_DECELERATION,
+    FENCE_GUARD_BUFFER,
     FIRMWARE_BRAKE_DECELERATION,
     SPEED_OVERSHOOT,
     TILT_LIMIT_DECELERATION,
     TRACKER_RESPONSE_DELAY_S,
     SafetyMonitor,
     fastest_speed_for,
+    keep_inside,
     required_margin,
     stopping_distance,
 )
@@ -177,3 +186,70 @@ def test_a_drone_tilted_past_the_tumble_limit_for_long_enough_has_tumbled():
     assert monitor.tumbled(0.16, tilted(45.0), flying) == []  # within the limit
     assert monitor.tumbled(0.50, tilted(90.0, age=1.0), flying) == []  # a stale pose says nothing
     assert monitor.tumbled(0.60, tilted(90.0), np.array([False, True])) == []  # down already
+
+
+# ------------------------------------------------------------------ the fence guard
+def test_the_fence_guard_cuts_what_heads_for_a_wall_to_what_stops_in_the_room_left():
+    """By hand: the firmware overshoots a command u to 1.1 u, and from there a drone needs 1.25 (1.1 u t + (1.1 u)^2 /
+    (2 x 2.4)) with t = 0.030 + 1/48 + 0.15 s; 0.15 m from the wall, with the guard's 5 cm buffer, it has 0.1 m."""
+    loop_hz = 48.0
+    t, a = 0.030 + 1 / 48 + 0.15, 2.4
+
+    def by_hand(room: float) -> float:  # the root u of 1.25 (1.1 u t + (1.1 u)^2 / (2 a)) = room
+        overshot = (-t + math.sqrt(t * t + 4 * (room / 1.25) / (2 * a))) / (2 / (2 * a))
+        return overshot / 1.1
+
+    low, high = np.array([-1.0, -1.0, -np.inf]), np.array([1.0, 1.0, 2.0])
+    pos = np.array([[0.85, 0, 1], [0.85, 0, 1], [0, -1.05, 1], [0, 0, 0.05], [0, 0, 1.9], [np.nan] * 3, [0.5, 0, 1]])
+    vel = np.array([[2.0, 0.5, -0.3], [-1.0, 0.5, -0.3], [0.4, -0.4, 0.2], [0, 0, -1], [0, 0, 1], [3, 0, 0], [2, 0, 0]])
+    measured = np.zeros_like(vel)  # at rest, but the last one already flies 2 m/s at the wall 0.5 m away
+    measured[6, 0] = 2.0
+    guarded, changed = keep_inside(vel, pos, measured, low, high, loop_hz)
+    assert FENCE_GUARD_BUFFER == 0.05
+    assert guarded[0, 0] == pytest.approx(by_hand(0.1), rel=1e-9)
+    assert stopping_distance(SPEED_OVERSHOOT * guarded[0, 0], loop_hz) == pytest.approx(0.1)
+    np.testing.assert_array_equal(guarded[0, 1:], [0.5, -0.3])  # the other axes as the policy asked
+    np.testing.assert_array_equal(guarded[1], vel[1])  # away from the wall, slower than the far one allows: untouched
+    # 5 cm beyond a wall, 10 cm beyond the buffer: pushed back in at what stops in 10 cm; the other axes kept
+    np.testing.assert_allclose(guarded[2], [0.4, by_hand(0.1), 0.2], rtol=1e-9)
+    np.testing.assert_array_equal(guarded[3], vel[3])  # the floor is not guarded: landing goes down to it
+    assert guarded[4, 2] == pytest.approx(by_hand(0.05), rel=1e-9)  # the ceiling is
+    np.testing.assert_array_equal(guarded[5], vel[5])  # a NaN position is the stale-data rules' business
+    # at rest there it could be sent at by_hand(0.45) m/s; at 2 m/s it needs more than the 0.45 m left: brake now
+    assert stopping_distance(2.0, loop_hz) > 0.45 and by_hand(0.45) > 0.5
+    np.testing.assert_array_equal(guarded[6], [0.0, 0.0, 0.0])
+    assert changed.tolist() == [True, False, True, False, True, False, True]
+
+
+class Runaway:
+    """Wraps a policy; drone ``drone``'s action is always full speed along +x: a policy that cannot see the walls."""
+
+    def __init__(self, policy, drone: int) -> None:
+        self.policy, self.drone, self.contract = policy, drone, policy.contract
+
+    def act(self, obs):
+        out = np.array(self.policy.act(obs), dtype=float)
+        out.reshape(-1, 3)[self.drone] = [1.0, 0.0, 0.0]
+        return out
+
+
+@pytest.mark.parametrize("simulator", SIMULATORS)
+def test_a_policy_heading_for_a_wall_is_held_inside_the_soft_fence(simulator, policy_path):
+    """The runaway of the policy, not of the drone: the guard slows it to a stop 5 cm inside the soft fence, so the
+    flight is not aborted; it runs to its time limit, which lands every drone, and nothing leaves the box."""
+    base = load_lab_config(EXAMPLE_CONFIG)
+    lab = base.replace(
+        limits=dataclasses.replace(base.limits, max_flight_s=8.0),
+        simulation=dataclasses.replace(base.simulation, simulator=simulator),
+    )
+    policy = Runaway(load_lab_policy(policy_path, lab), drone=0)
+    seen: list[np.ndarray] = []
+    result = rehearse(lab, policy, seed=0, hooks=[lambda m, t: m.stream.last and seen.append(m.stream.last.pos[0])])
+    kinds = [e.kind for e in result.mission.events]
+    guard = [e for e in result.mission.events if e.kind == "fence_guard"]
+    assert "geofence_breach" not in kinds and guard and guard[0].drone == 0, kinds
+    assert result.safe and result.at_rest.all() and (result.fence_excess == 0).all(), result.summary()
+    soft_x = lab.geofence.bounds(soft=True)[1][0]
+    closest = soft_x - np.nanmax([p[0] for p in seen])  # NaN before the first pose
+    assert 0.0 < closest < 0.1, closest  # it came up to the soft fence and stopped short of it
+    assert "flight_timeout" in kinds, kinds  # the flight went on under the policy to its end

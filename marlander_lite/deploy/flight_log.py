@@ -18,8 +18,9 @@ A tick record::
      "events": [{"t", "kind", "message", "drone"}], "compute_ms": time spent in the tick}
 
 With the safety filter on (config ``safety_filter.enabled``), each ``velocity`` command also says
-whether the filter changed it, ``"filtered": true|false``, and when it did, what the policy asked
-for, ``"v_policy": [vx, vy, vz]`` (m/s; ``v`` is what was sent). With it off the record is as above.
+whether the filter changed it, ``"filtered": true|false``; one the fence guard changed says
+``"fence_guard": true``; and when either did, the record holds what the policy asked for,
+``"v_policy": [vx, vy, vz]`` (m/s; ``v`` is what was sent). Otherwise the record is as above.
 """
 
 from __future__ import annotations

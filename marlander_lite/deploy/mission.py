@@ -363,8 +363,12 @@ class Mission(LandingControl):
             else:
                 self._touchdowns(est, flying)
                 hover = verdict.action == "hover"
-                for i in np.flatnonzero(flying & np.array([p in UNDER_POLICY for p in self.phase])):
-                    v = np.zeros(3) if hover else self.output.velocity[i]
+                under = flying & np.array([p in UNDER_POLICY for p in self.phase])
+                # guarded every tick, not only when the policy acts: the drone moves on between two actions
+                velocity = self.output.velocity
+                send = np.zeros_like(velocity) if hover else self._guard_fence(est, velocity, under)
+                for i in np.flatnonzero(under):
+                    v = send[i]
                     self.link.send_velocity(i, v)
                     self.runner.previous_command[i] = v
                     self._set_phase(i, DronePhase.HOVER if hover else DronePhase.POLICY)
@@ -381,6 +385,7 @@ class Mission(LandingControl):
         out.obs = self.runner.observe(est)
         try:
             out.action, velocity = self.runner.act(out.obs, est.goal)
+            out.unfiltered = velocity
             out.velocity = velocity if self.runner.safety_filter is None else self._filter(est, velocity)
             if not out.valid:
                 self.event("recovered", "the policy returns valid actions again")
@@ -398,8 +403,22 @@ class Mission(LandingControl):
         filtered, changed = self.runner.filter_velocity(velocity, est, settled)
         for i in self.output.starts(changed, self.t):
             self.event("safety_filter", describe_filtering(self.names, i, est, velocity[i], filtered[i]), i)
-        self.output.unfiltered, self.output.filtered = velocity, changed
+        self.output.filtered = changed
         return filtered
+
+    def _guard_fence(self, est: SwarmEstimate, velocity: np.ndarray, under: np.ndarray) -> np.ndarray:
+        """The setpoints ``velocity`` ``(N, 3)`` m/s through the fence guard, every tick: no drone is sent towards a
+        wall or the ceiling faster than it can stop from before the soft fence (eq. 2 does not tell the policy where
+        the walls are). A ``fence_guard`` event marks each drone under the policy (``under`` ``(N,)``) it starts to
+        slow down (once per spell)."""
+        guarded, changed = self.safety.keep_inside(velocity, est.pos, est.vel)
+        changed &= under
+        for i in self.output.guard_starts(changed, self.t):
+            pos, before, after = np.round(est.pos[i], 2).tolist(), np.round(velocity[i], 3), np.round(guarded[i], 3)
+            message = f"{self.names[i]} at {pos} nears the soft fence: {before.tolist()} -> {after.tolist()} m/s"
+            self.event("fence_guard", message, i)
+        self.output.guarded = changed
+        return guarded
 
     # ------------------------------------------------------------------ lost links and requests
     def _check_links(self) -> None:

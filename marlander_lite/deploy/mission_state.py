@@ -61,8 +61,17 @@ class PoseStream:
 
 
 FILTER_SPELL_GAP_S = 0.5
-"""A drone's spell of safety filtering ends when the filter has left its setpoint alone this long (s); the next
-change starts a new spell, and a new ``safety_filter`` event (one per spell, not one per step)."""
+"""A drone's spell of safety filtering (or of the fence guard) ends when the filter has left its setpoint alone this
+long (s); the next change starts a new spell, and a new ``safety_filter`` (``fence_guard``) event (one per spell, not
+one per step)."""
+
+
+def _new_spells(last: np.ndarray | None, changed: np.ndarray, t: float) -> tuple[np.ndarray, list[int]]:
+    """``(last change times updated, drones starting a spell)`` for setpoints ``changed`` ``(N,)`` at time ``t``."""
+    last = np.full(len(changed), -np.inf) if last is None else last
+    new = changed & (t - last > FILTER_SPELL_GAP_S)
+    last[changed] = t
+    return last, [int(i) for i in np.flatnonzero(new)]
 
 
 @dataclass
@@ -78,28 +87,39 @@ class PolicyOutput:
     valid: bool = True
     """The latest action was valid (finite, in range); False: hover until it is again."""
     unfiltered: np.ndarray | None = None
-    """The policy's setpoints before the safety filter ``(N, 3)`` m/s; None: no filter (``velocity`` is theirs)."""
+    """The policy's setpoints before the safety filter and the fence guard ``(N, 3)`` m/s."""
     filtered: np.ndarray | None = None
     """Whether the safety filter changed each drone's setpoint ``(N,)`` bool; None: no filter."""
+    guarded: np.ndarray | None = None
+    """Whether the fence guard (:meth:`~marlander_lite.deploy.safety.SafetyMonitor.keep_inside`) changed each drone's
+    setpoint ``(N,)`` bool."""
     last_filtered: np.ndarray | None = None
     """Mission time the safety filter last changed each drone's setpoint ``(N,)`` s; -inf: never; None: no filter."""
+    last_guarded: np.ndarray | None = None
+    """Mission time the fence guard last changed each drone's setpoint ``(N,)`` s; -inf: never; None: not yet."""
 
     def starts(self, changed: np.ndarray, t: float) -> list[int]:
         """Drones whose setpoint the filter ``changed`` ``(N,)`` now, at mission time ``t`` (s), after leaving it
         alone for :data:`FILTER_SPELL_GAP_S` or more: a new spell of filtering, worth an event."""
-        if self.last_filtered is None:
-            self.last_filtered = np.full(len(changed), -np.inf)
-        new = changed & (t - self.last_filtered > FILTER_SPELL_GAP_S)
-        self.last_filtered[changed] = t
-        return [int(i) for i in np.flatnonzero(new)]
+        self.last_filtered, new = _new_spells(self.last_filtered, changed, t)
+        return new
+
+    def guard_starts(self, changed: np.ndarray, t: float) -> list[int]:
+        """As :meth:`starts`, for the fence guard: drones it starts to slow down now, worth a ``fence_guard`` event."""
+        self.last_guarded, new = _new_spells(self.last_guarded, changed, t)
+        return new
 
     def annotate(self, i: int, command: dict[str, Any]) -> None:
-        """Add to drone ``i``'s velocity record of the flight log whether the filter changed it (``filtered``) and,
-        if so, the policy's setpoint (``v_policy``, m/s); without a filter the record stays as it is."""
-        if self.filtered is None or self.unfiltered is None:
-            return
-        command["filtered"] = bool(self.filtered[i])
-        if self.filtered[i]:
+        """Add to drone ``i``'s velocity record of the flight log whether the filter changed it (``filtered``; with
+        the filter on), ``fence_guard: true`` if the fence guard did, and if either did, the policy's setpoint
+        (``v_policy``, m/s); without a filter and the guard idle the record stays as it is."""
+        guarded = self.guarded is not None and bool(self.guarded[i])
+        filtered = self.filtered is not None and bool(self.filtered[i])
+        if self.filtered is not None:
+            command["filtered"] = filtered
+        if guarded:
+            command["fence_guard"] = True
+        if (filtered or guarded) and self.unfiltered is not None:
             command["v_policy"] = np.round(self.unfiltered[i], 6).tolist()
 
 

@@ -6,6 +6,10 @@ The rules (thresholds in :class:`marlander_lite.deploy.config.SafetyConfig`):
 before take-off                :meth:`SafetyMonitor.arming_problems`: every drone and pad seen and
                                fresh, valid, inside the soft fence, still, level, apart; links up;
                                the take-off height 0.3 m above the pads.
+fence guard                    every policy setpoint: a component towards a wall or the ceiling of
+                               the soft box is slowed to the speed the drone can stop from in the
+                               room left (:func:`keep_inside`), so that the policy, which does not
+                               observe the walls (eq. 2), cannot fly a drone out of it.
 geofence                       a flying drone outside the soft box, or one whose stopping
                                distance (:func:`stopping_distance`) reaches the hard box -> every
                                drone hovers for ``geofence_hover_s``, then lands. Not resumed.
@@ -134,11 +138,48 @@ def braking_margin_problem(max_speed: float, margin: float, loop_hz: float) -> s
     )
 
 
-def fastest_speed_for(margin: float, loop_hz: float) -> float:
-    """The highest ``limits.max_speed`` (m/s) whose stopping distance fits ``margin`` (inverse of
-    :func:`required_margin`)."""
+def fastest_speed_for(margin: Any, loop_hz: float) -> Any:
+    """The highest commanded speed (m/s; the highest ``limits.max_speed``) whose stopping distance, overshoot
+    included, fits ``margin`` (m, a float or an array; inverse of :func:`required_margin`)."""
     a, t = BRAKE_DECELERATION, coast_time(loop_hz)
-    return a * (math.sqrt(t * t + 2.0 * margin / (SAFETY_FACTOR * a)) - t) / SPEED_OVERSHOOT
+    return a * (np.sqrt(t * t + 2.0 * np.asarray(margin) / (SAFETY_FACTOR * a)) - t) / SPEED_OVERSHOOT
+
+
+FENCE_GUARD_BUFFER = 0.05
+"""The fence guard stops drones this far inside the soft fence (m): motion-capture noise and the tracker's drift at a
+zero setpoint would carry a drone that stopped on the fence itself across it (measured in the rehearsal: 5 mm)."""
+
+
+def keep_inside(
+    velocity: np.ndarray,
+    pos: np.ndarray,
+    vel: np.ndarray,
+    low: np.ndarray,
+    high: np.ndarray,
+    loop_hz: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The fence guard: velocity setpoints ``(N, 3)`` m/s that a drone at ``pos`` ``(N, 3)`` m flying ``vel``
+    ``(N, 3)`` m/s (as measured) can follow and still stop inside the box ``[low, high]`` (``(3,)`` m each;
+    ``low[2] = -inf`` leaves the floor unguarded, for landing), and ``(N,)`` bool: which drones' setpoints changed.
+
+    The room to a face is the distance to it less :data:`FENCE_GUARD_BUFFER`. A component pointing at a face is cut
+    to :func:`fastest_speed_for` that room, and to 0 (brake) once the drone's own speed towards the face needs all of
+    it (:func:`stopping_distance`: a tracker answers a lowered setpoint more softly than a stop); with no room left,
+    to a push back inwards at the speed that room's overrun would allow. Components pointing inwards (unless pushed
+    harder), and the other axes, are kept. The drone then slows down as it nears a wall and slides along it, instead
+    of crossing it. A NaN position leaves the setpoint alone (the stale-data rules handle it).
+    """
+
+    def allowed(distance: np.ndarray, speed: np.ndarray) -> np.ndarray:
+        room = distance - FENCE_GUARD_BUFFER
+        limit = np.sign(room) * fastest_speed_for(np.abs(room), loop_hz)
+        brake = stopping_distance(np.clip(speed, 0.0, None), loop_hz) >= room
+        return np.where(np.isnan(room), np.inf, np.where(brake, np.minimum(limit, 0.0), limit))
+
+    with np.errstate(invalid="ignore"):  # NaN rooms give NaN speeds, replaced by inf above
+        up, down = allowed(high - pos, vel), allowed(pos - low, -vel)
+    guarded = np.clip(velocity, -down, up)
+    return guarded, (guarded != velocity).any(axis=-1)
 
 
 EventKind = Literal[
@@ -147,6 +188,7 @@ EventKind = Literal[
     "takeoff",
     "policy_start",
     "geofence_breach",
+    "fence_guard",
     "stale_hover",
     "stale_land",
     "invalid_pose",
@@ -225,6 +267,13 @@ class SafetyMonitor:
         """Per drone ``(N,)``: inside the soft box (NaN positions count as inside; staleness handles them)."""
         outside = (pos < self._low) | (pos > self._high)
         return ~outside.any(axis=-1)
+
+    def keep_inside(self, velocity: np.ndarray, pos: np.ndarray, vel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The policy's setpoints ``(N, 3)`` m/s through the fence guard (:func:`keep_inside`) of the soft box, drones
+        at ``pos`` ``(N, 3)`` m flying ``vel`` ``(N, 3)`` m/s; and ``(N,)`` bool, which changed. The floor is not
+        guarded: landing goes down."""
+        low = np.array([self._low[0], self._low[1], -np.inf])
+        return keep_inside(velocity, pos, vel, low, self._high, self.lab.rates.loop_hz)
 
     def stopping_points(self, pos: np.ndarray, vel: np.ndarray) -> np.ndarray:
         """Where each drone ``(N, 3)`` would stand still if told to hover now (its braking path is straight)."""

@@ -9,8 +9,10 @@
 ``nan-pose``       one drone's pose comes as NaN (default 0.2 s): rejected, hover, resume.
 ``link-loss``      one drone's radio link dies: it is left to its firmware (level out after
                    0.5 s, motors off after 2 s, it drops), every other drone lands.
-``geofence-breach`` one drone's policy output is replaced by full speed towards the nearest
-                   wall: the soft fence stops it (hover), then every drone lands.
+``geofence-breach`` one drone flies off at the lab's top speed towards the nearest wall
+                   whatever it is told (a failing estimator or tracker on board, which no
+                   setpoint and so no fence guard can stop) until it crosses the soft fence:
+                   every drone hovers, the runaway stops inside the hard fence, every drone lands.
 =================  ==========================================================================
 
 A :class:`FaultInjector` is a :class:`marlander_lite.deploy.mission.Mission` hook: it starts
@@ -30,7 +32,6 @@ from typing import TYPE_CHECKING, Literal, get_args
 import numpy as np
 
 from marlander_lite.deploy.modes import MissionMode
-from marlander_lite.deploy.runner import Policy
 
 if TYPE_CHECKING:
     from marlander_lite.deploy.mission import Mission
@@ -86,18 +87,6 @@ class FaultSpec:
         return self.duration_s if self.duration_s is not None else DEFAULT_DURATION_S.get(self.kind, np.inf)
 
 
-class RoguePolicy:
-    """Wraps a policy; drone ``drone``'s action becomes ``action`` (a runaway policy)."""
-
-    def __init__(self, policy: Policy, drone: int, action: np.ndarray) -> None:
-        self.policy, self.drone, self.rogue = policy, drone, np.asarray(action, dtype=float)
-
-    def act(self, obs: np.ndarray) -> np.ndarray:
-        out = np.array(self.policy.act(obs), dtype=float)
-        out.reshape(-1, 3)[self.drone] = self.rogue
-        return out
-
-
 class FaultInjector:
     """Applies one :class:`FaultSpec` to a simulated lab, as a mission hook ``injector(mission, t)``."""
 
@@ -139,7 +128,7 @@ class FaultInjector:
             low, high = mission.lab.geofence.bounds(soft=True)
             centre = (np.array(low[:2]) + np.array(high[:2])) / 2
             away = pos - centre if np.linalg.norm(pos - centre) > 1e-6 else np.array([1.0, 0.0])
-            action = np.array([*(away / np.abs(away).max()), 0.0])
-            mission.runner.policy = RoguePolicy(mission.runner.policy, spec.drone, action)
-            what = f"{name}'s policy output replaced by {np.round(action, 2).tolist()} (full speed outwards)"
+            velocity = np.array([*(away / np.linalg.norm(away)), 0.0]) * mission.lab.limits.max_speed
+            self.world.run_away(spec.drone, velocity)
+            what = f"{name} flies {np.round(velocity, 2).tolist()} m/s whatever it is told, until the soft fence"
         mission.event("fault_injected", f"{spec.kind}: {what}", spec.drone)

@@ -147,6 +147,10 @@ class SimulatedWorld:
         low, high = lab.geofence.bounds()
         low = np.array(low, dtype=float) - [0.0, 0.0, FLOOR_CONTACT_TOLERANCE]
         self._fence = (low, np.array(high, dtype=float))
+        self._soft_fence = tuple(np.array(b, dtype=float) for b in lab.geofence.bounds(soft=True))
+        self.runaway: tuple[int, np.ndarray] | None = None
+        """``(drone, velocity (3,) m/s)``: a drone that flies this velocity whatever its firmware is told, until it is
+        outside the soft fence (the ``geofence-breach`` fault, :meth:`run_away`); None: none."""
         self.fence_excess = np.zeros(self.n)
         """How far each drone has been outside the hard geofence so far (m; 0: it never left it), checked every
         physics step against the simulator's truth (a drone sinking into the floor on impact is not outside)."""
@@ -237,6 +241,13 @@ class SimulatedWorld:
         if stop.any():
             self.sim.stop_motors(stop[None])
         self.motors_on = want_on
+        if self.runaway is not None:
+            i, velocity = self.runaway
+            low, high = self._soft_fence
+            if ((state.pos[0, i] >= low) & (state.pos[0, i] <= high)).all():
+                command[0, i] = velocity
+            else:  # out: its firmware obeys again, and the loop's rules take over
+                self.runaway = None
         before = state.pos[0].copy()
         self.sim.step(command)
         self.time += self.dt
@@ -251,6 +262,11 @@ class SimulatedWorld:
         low, high = self._fence
         excess = np.maximum(low - state.pos[0], state.pos[0] - high).max(axis=1)
         self.fence_excess = np.maximum(self.fence_excess, excess)
+
+    def run_away(self, drone: int, velocity: np.ndarray) -> None:
+        """Make ``drone`` fly ``velocity`` ``(3,)`` m/s, world frame, whatever it is told, until it leaves the soft
+        fence: a fault on board (estimator, tracker) that no setpoint corrects."""
+        self.runaway = (int(drone), np.asarray(velocity, dtype=float))
 
     def _on_plate(self, state: Any) -> np.ndarray:
         """Drones resting on the plate ``(N,)``: the simulator says they touch their own pad, or they touch
