@@ -253,3 +253,25 @@ def test_a_policy_heading_for_a_wall_is_held_inside_the_soft_fence(simulator, po
     closest = soft_x - np.nanmax([p[0] for p in seen])  # NaN before the first pose
     assert 0.0 < closest < 0.1, closest  # it came up to the soft fence and stopped short of it
     assert "flight_timeout" in kinds, kinds  # the flight went on under the policy to its end
+
+
+def test_arming_refuses_a_pad_the_fence_guard_would_keep_its_drone_from():
+    """cf1's pad 3 cm inside the soft fence: the guard holds drones 5 cm inside it, so cf1 could never land there.
+    cf2's pad, 10 cm inside, is reachable. Both drones stand still, level and apart on the floor."""
+    lab = load_lab_config(EXAMPLE_CONFIG)
+    soft_x = lab.geofence.bounds(soft=True)[1][0]
+    monitor = SafetyMonitor(lab)
+    est = SimpleNamespace(
+        pos=np.array([[0.0, 0.0, 0.01], [0.0, 0.5, 0.01]]),
+        vel=np.zeros((2, 3)),
+        quat=np.array([[0.0, 0.0, 0.0, 1.0]] * 2),
+        pad_pos=np.array([[soft_x - 0.03, 0.0, 0.0], [soft_x - 0.10, 0.5, 0.0]]),
+        drone_age=np.zeros(2),
+        pad_age=np.zeros(2),
+        drone_invalid=np.zeros(2, dtype=bool),
+        pad_invalid=np.zeros(2, dtype=bool),
+    )
+    problems = monitor.arming_problems(est, [None, None])
+    assert len(problems) == 1 and "pad of cf1" in problems[0], problems
+    assert "is not 5 cm inside the soft geofence" in problems[0] and "could not reach its pad" in problems[0]
+    assert not monitor.guard_lets_reach(est.pad_pos[0]) and monitor.guard_lets_reach(est.pad_pos[1])

@@ -4,7 +4,8 @@ The rules (thresholds in :class:`marlander_lite.deploy.config.SafetyConfig`):
 
 =============================  ===================================================================
 before take-off                :meth:`SafetyMonitor.arming_problems`: every drone and pad seen and
-                               fresh, valid, inside the soft fence, still, level, apart; links up;
+                               fresh, valid, inside the soft fence (a pad 5 cm inside it, where the
+                               fence guard lets a drone reach), still, level, apart; links up;
                                the take-off height 0.3 m above the pads.
 fence guard                    every policy setpoint: a component towards a wall or the ceiling of
                                the soft box is slowed to the speed the drone can stop from in the
@@ -275,6 +276,13 @@ class SafetyMonitor:
         low = np.array([self._low[0], self._low[1], -np.inf])
         return keep_inside(velocity, pos, vel, low, self._high, self.lab.rates.loop_hz)
 
+    def guard_lets_reach(self, point: np.ndarray) -> bool:
+        """Whether the fence guard lets a drone reach ``point`` ``(3,)`` m: at least :data:`FENCE_GUARD_BUFFER` inside
+        the soft box's side walls (the ceiling does not matter for a pad; NaN counts as reachable)."""
+        xy = np.asarray(point, dtype=float)[:2]
+        inside = (xy >= self._low[:2] + FENCE_GUARD_BUFFER) & (xy <= self._high[:2] - FENCE_GUARD_BUFFER)
+        return bool((inside | np.isnan(xy)).all())
+
     def stopping_points(self, pos: np.ndarray, vel: np.ndarray) -> np.ndarray:
         """Where each drone ``(N, 3)`` would stand still if told to hover now (its braking path is straight)."""
         speed = np.linalg.norm(vel, axis=-1, keepdims=True)
@@ -305,8 +313,15 @@ class SafetyMonitor:
                 continue
             if not self.lab.geofence.contains(pos, soft=True):
                 problems.append(f"{name} at {np.round(pos, 2).tolist()} is outside the soft geofence")
+            pad_at = np.round(est.pad_pos[i], 2).tolist()
             if not self.lab.geofence.contains(est.pad_pos[i], soft=False):
-                problems.append(f"pad of {name} at {np.round(est.pad_pos[i], 2).tolist()} is outside the geofence")
+                problems.append(f"pad of {name} at {pad_at} is outside the geofence")
+            elif not self.guard_lets_reach(est.pad_pos[i]):
+                problems.append(
+                    f"pad of {name} at {pad_at} is not {100 * FENCE_GUARD_BUFFER:.0f} cm inside the soft geofence: the "
+                    f"fence guard holds drones that far inside it, so {name} could not reach its pad. Move the pad "
+                    "inwards or widen the geofence."
+                )
             speed = float(np.linalg.norm(est.vel[i]))
             if speed > cfg.arming_max_speed:
                 problems.append(f"{name} moves at {speed:.2f} m/s (limit {cfg.arming_max_speed})")
