@@ -274,7 +274,7 @@ class TaskConfig:
 
     @property
     def obs_dim(self) -> int:
-        """Length of the centralised observation: 13 N (or 16 N)."""
+        """Length of the centralised observation: :attr:`obs_per_drone` N (13 N for the paper's eq. 2)."""
         return self.obs_per_drone * self.num_drones
 
     @property

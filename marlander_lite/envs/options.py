@@ -195,7 +195,8 @@ def drone_action_space() -> spaces.Box:
 
 
 def centralised_observation_space(task: TaskConfig) -> spaces.Box:
-    """The paper's flattened input: ``(13 N,)`` float32 (``(16 N,)`` or ``(19 N,)`` with the extras)."""
+    """The paper's flattened input: ``(13 N,)`` float32; with the extras and ``observation_history``
+    ``(TaskConfig.obs_per_drone N,)``, each drone's part bounded as :func:`drone_observation_space`."""
     high = np.tile(drone_observation_space(task).high, task.num_drones)
     return spaces.Box(-high, high, dtype=np.float32)
 
