@@ -234,6 +234,27 @@ class LandingEpisodes:
             self._seen_pad_vel[ids] = seen[..., PLATFORM_VELOCITY]
         return self.history.reset(self._with_acceleration(seen, ids), ids)
 
+    def relaunch(self, drones: np.ndarray) -> np.ndarray:
+        """Start the drones where ``drones`` ``(num_envs, N)`` is True afresh, mid-episode, from new random starts (the
+        simulator's ``relaunch``) while the others fly on; returns their first observations as the policy sees them,
+        ``(k, 13)`` (or the task's stacked size) for the ``k`` drones in ``drones`` (row-major order). Not part of the paper's MDP: the per-drone
+        episode ends of :class:`~marlander_lite.swarm.vec_env.SharedSwarmVecEnv`, a training aid, use it.
+        """
+        relaunch = getattr(self.sim, "relaunch", None)
+        if relaunch is None:
+            raise TypeError(f"{type(self.sim).__name__} cannot relaunch single drones; the point-mass swarm can.")
+        if self._observes_acceleration:
+            raise ValueError("Relaunching single drones needs observe_platform_acceleration=False.")
+        drones = np.asarray(drones, dtype=bool)
+        relaunch(drones, self.rng)
+        rel_pos, _, obs = self._measure(self.sim.state(), np.zeros_like(self.previous_command))
+        self.landed[drones] = False
+        self.prev_dist[drones] = vector_norm(rel_pos)[drones]
+        self.landing_error[drones] = np.nan
+        self.landing_time[drones] = np.nan
+        self.previous_command[drones] = 0.0
+        return self.history.reset(self.channel.restart(drones, obs, self.rng), drones)
+
     def step(self, action: np.ndarray) -> StepOutcome:
         """Apply normalised actions (eq. 3) in every env and evaluate the MDP.
 

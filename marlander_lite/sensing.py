@@ -132,6 +132,12 @@ class ObservationChannel:
             self._env_frac[env_ids] = steps - np.floor(steps)
         return self._degrade(obs, rng)
 
+    def restart(self, drones: np.ndarray, obs: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """Start single drones afresh mid-episode: where ``drones`` ``(num_envs, N)`` is True, their history holds
+        nothing older than ``obs`` ``(num_envs, N, frame)``; returns what the policy sees of them, ``(k, frame)``."""
+        self._history[:, drones] = obs[drones]
+        return self._degrade(obs[drones], rng)
+
     def observe(self, obs: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """Push the true observation of every env and return what the policy sees."""
         if self.config.is_perfect:

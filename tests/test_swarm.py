@@ -12,7 +12,7 @@ from stable_baselines3.common.vec_env import VecCheckNan
 from marlander_lite.episodes import LandingEpisodes
 from marlander_lite.platforms import PlateGeometry, PlatformConfig
 from marlander_lite.pointmass.simulator import PointMassSwarm
-from marlander_lite.policy_file import MLPPolicy, PolicyContract, PolicyFileError, save_policy
+from marlander_lite.policy_file import MLPPolicy, PolicyContract, PolicyFileError, read_contract, save_policy
 from marlander_lite.swarm.evaluation import evaluate_cell, markdown_table
 from marlander_lite.swarm.observation import NEIGHBOUR_FEATURES, neighbour_features, shared_observations
 from marlander_lite.swarm.policy import SharedPolicy
@@ -296,9 +296,85 @@ def test_the_shield_keeps_drones_apart_in_training_and_charges_exactly_its_corre
     np.testing.assert_allclose(charged[0] - shielded_rewards[0], -2.0 * correction, rtol=1e-5)
 
 
+def three_at_rest(**aids):
+    """Three drones at rest, 1 m up: 0 and 1 are 0.10 m apart (a collision, < 0.15 m), 2 is 0.8 m from 1; their
+    first step with zero commands."""
+    env = SharedSwarmVecEnv((3,), 1, neighbours=2, seed=3, neighbour_radius=0.2, **aids)
+    env.reset()
+    sim = env.groups[0].sim
+    sim.pos[0] = [[0.0, 0.0, 1.0], [0.10, 0.0, 1.0], [0.90, 0.0, 1.0]]
+    sim.vel[0] = 0.0
+    return env, env.step(np.zeros((3, 3), dtype=np.float32))
+
+
+def test_per_drone_episode_ends_worked_by_hand():
+    """With per-drone episode ends the collision ends the episodes of drones 0 and 1 only: each pays alpha_c, takes
+    off again from a new start, and begins its next episode in the same entry; drone 2 flies on untouched. Without
+    them the same collision ends all three."""
+    _, (_, involved, done, _) = three_at_rest(collision_credit="involved")
+    assert done.all()  # eq. 4: one collision ends the swarm's episode
+    env, (obs, reward, done, infos) = three_at_rest(drone_episode_ends=True, collision_credit="involved")
+    episodes, sim = env.groups[0], env.groups[0].sim
+    assert done.tolist() == [True, True, False]
+    np.testing.assert_allclose(reward, involved)  # the same rewards: 0 and 1 pay alpha_c, 2 does not
+    for drone in (0, 1):
+        assert infos[drone]["TimeLimit.truncated"] is False and "episode" not in infos[drone]
+        assert infos[drone]["terminal_observation"][13 + 6] == 1.0  # its last input senses the other
+    # Relaunched: at rest, level, at least spawn_separation from every other drone; drone 2 is where it was.
+    separation = np.linalg.norm(sim.pos[0, :, None] - sim.pos[0, None], axis=-1) + np.eye(3)
+    assert separation[:2].min() >= episodes.task.spawn_separation
+    assert not sim.vel[0, :2].any() and (sim.quat[0, :2] == [0, 0, 0, 1]).all()
+    np.testing.assert_allclose(sim.pos[0, 2, :2], [0.90, 0.0], atol=1e-6)
+    # Their next inputs are their new starts (perfect sensing here), and the swarm's episode goes on.
+    np.testing.assert_allclose(obs[:3, :13], episodes.true_observations()[0], atol=1e-5)
+    np.testing.assert_allclose(episodes.prev_dist[0, :2], np.linalg.norm(obs[:2, :3], axis=-1), atol=1e-5)
+    assert episodes.steps[0] == 1
+    # At the time limit every entry ends, cut off (TimeLimit.truncated), and the swarm starts again.
+    episodes.steps[0] = episodes.task.max_steps - 1
+    _, _, done, infos = env.step(np.zeros((3, 3), dtype=np.float32))
+    assert done.all() and all(infos[d]["TimeLimit.truncated"] for d in range(3)) and "episode" in infos[0]
+    assert episodes.steps[0] == 0
+
+
+def test_per_drone_episode_ends_are_deterministic_and_well_formed():
+    def run():
+        env = SharedSwarmVecEnv(
+            (2, 8), 8, seed=5, task={"spawn_separation": 0.2}, neighbour_radius=0.2, collision_credit="involved",
+            drone_episode_ends=True,
+        )  # fmt: skip
+        checked = VecCheckNan(env, raise_exception=True)
+        rng = np.random.default_rng(0)
+        out = [checked.reset()]
+        ended = 0
+        for _ in range(120):
+            obs, reward, done, infos = checked.step(rng.uniform(-1, 1, (env.num_envs, 3)).astype(np.float32))
+            assert all("terminal_observation" in infos[i] for i in np.flatnonzero(done))
+            ended += int(done.sum())
+            out += [obs, reward]
+        assert ended > 0
+        return out
+
+    for a, b in zip(run(), run(), strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_relaunch_starts_single_drones_afresh_and_checks_its_input():
+    episodes = swarm(3)
+    episodes.sim.place(0, far_apart(episodes))
+    before = episodes.sim.pos[0].copy()
+    first = episodes.relaunch(np.array([[False, True, False]]))
+    assert first.shape == (1, 13)
+    np.testing.assert_allclose(first[0], episodes.true_observations()[0, 1])
+    np.testing.assert_array_equal(episodes.sim.pos[0, [0, 2]], before[[0, 2]])
+    assert not np.allclose(episodes.sim.pos[0, 1], before[1])
+    with pytest.raises(ValueError, match=r"drones must be a \(1, 3\) bool array"):
+        episodes.sim.relaunch(np.ones((1, 2), dtype=bool), np.random.default_rng(0))
+
+
 @pytest.mark.parametrize(
     ("kwargs", "match"),
     [
+        ({"drone_episode_ends": True}, "drone_episode_ends needs collision_credit='involved'"),
         ({"collision_credit": "team"}, "collision_credit must be 'swarm' or 'involved'"),
         ({"separation_penalty": -1.0}, "separation_penalty must be a finite number >= 0"),
         ({"separation_margin": 0.0}, "separation_margin must be a finite distance > 0 m"),
@@ -326,6 +402,9 @@ def test_bad_shared_training_configs_are_refused():
         SharedTrainConfig(separation_penalty=float("nan"))
     with pytest.raises(ValueError, match="shield_penalty needs shield=True"):
         SharedTrainConfig(shield_penalty=1.0)
+    with pytest.raises(ValueError, match="drone_episode_ends needs collision_credit='involved'"):
+        SharedTrainConfig(drone_episode_ends=True)
+    assert SHARED_PRESETS["shared-quick-drone-ends"].drone_episode_ends
     preset = SHARED_PRESETS["shared-quick"]
     assert SharedTrainConfig.from_dict(preset.to_dict()) == preset
     assert preset.swarms_per_size == (160, 80, 53, 40)
@@ -434,11 +513,12 @@ def test_shared_training_applies_the_smoothness_and_separation_aids_it_records(t
     config = SHARED_PRESETS["shared-quick-local"].replace(
         total_steps=4096, swarm_sizes=(2, 3), drones_per_size=32, n_steps=32, batch_size=496, seed=0,
         smoothness_temporal=1.0, smoothness_spatial=1.0, neighbour_radius=0.5, collision_credit="involved",
-        separation_penalty=10.0,
+        separation_penalty=10.0, drone_episode_ends=True,
     )  # fmt: skip
     files = train_shared(config, tmp_path / "run")
     record = json.loads(files.config.read_text())["train"]
     assert record["collision_credit"] == "involved" and record["separation_penalty"] == 10.0
+    assert record["drone_episode_ends"] and read_contract(files.policy).neighbour_radius == 0.5
     assert record["smoothness_temporal"] == 1.0 and record["neighbour_radius"] == 0.5
     with files.progress.open() as f:
         losses = [float(row["train/smoothness_loss"]) for row in csv.DictReader(f) if row.get("train/smoothness_loss")]

@@ -258,6 +258,40 @@ class PointMassSwarm:
         self.landed[env_id] = False
         self.motors_stopped[env_id] = False
 
+    def relaunch(self, drones: np.ndarray, rng: np.random.Generator, tries: int = 20) -> None:
+        """Put the drones where ``drones`` ``(num_envs, N)`` is True at new random starting positions, at rest and
+        level, while the others fly on (a training aid: per-drone episode ends; see :meth:`LandingEpisodes.relaunch`).
+
+        Starts are drawn as at a reset (:func:`~marlander_lite.task.sample_spawn_positions`) and kept once every
+        relaunched drone is ``spawn_separation`` from every other drone of its swarm; after ``tries`` draws the last
+        is kept. A relaunched drone keeps its dynamics (the same airframe taking off again).
+        """
+        drones = np.asarray(drones, dtype=bool)
+        if drones.shape != self.landed.shape:
+            raise ValueError(f"drones must be a {self.landed.shape} bool array, got shape {drones.shape}.")
+        from marlander_lite.swarm.observation import pairwise_offsets  # here: the swarm package builds on this one
+
+        pending = np.flatnonzero(drones.any(axis=-1))
+        for attempt in range(tries):
+            if not pending.size:
+                break
+            draw = task.sample_spawn_positions(rng, self._plate_pos[pending, 2], self.task, self._pads[pending])
+            mask = drones[pending]
+            candidate = np.where(mask[..., None], draw, self.pos[pending])
+            nearest_sq = np.where(mask, pairwise_offsets(candidate)[1].min(axis=-1), np.inf).min(axis=-1)
+            keep = (nearest_sq >= self.task.spawn_separation**2) | (attempt == tries - 1)
+            self.pos[pending[keep]] = candidate[keep]
+            pending = pending[~keep]
+        for array in (self.vel, self.ang_vel, self.quat, self._thrust_dir):
+            array[drones] = 0.0
+        self.quat[drones, 3] = 1.0
+        self._thrust_dir[drones, 2] = 1.0
+        self.contact[drones] = task.CONTACT_NONE
+        self.landed[drones] = False
+        self.motors_stopped[drones] = False
+        if self.family is not None:  # commands in flight to the old flight are dropped
+            self._commands[:, drones] = 0.0
+
     def stop_motors(self, stopped: np.ndarray) -> None:
         """Cut the motors of drones where ``stopped`` ``(num_envs, N)`` is True: they fall freely until they
         touch something, and ignore velocity commands until :meth:`place` or :meth:`reset`."""

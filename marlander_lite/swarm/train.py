@@ -62,6 +62,8 @@ class SharedTrainConfig(TrainConfig):
     """Training aid: fly the commands through the safety filter (its defaults) while training (SharedSwarmVecEnv)."""
     shield_penalty: float = 0.0
     """Training aid: reward lost per step per m/s the shield changed a flying drone's command (needs ``shield``)."""
+    drone_episode_ends: bool = False
+    """Training aid: a crash, collision or exit ends only the episode of the drones in it (SharedSwarmVecEnv)."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -84,6 +86,10 @@ class SharedTrainConfig(TrainConfig):
             problems.append(f"shield_penalty must be a finite number >= 0, got {self.shield_penalty!r}")
         elif self.shield_penalty and not self.shield:
             problems.append("shield_penalty needs shield=True (the penalty is on the shield's corrections)")
+        if self.drone_episode_ends and self.collision_credit != "involved":
+            problems.append(
+                "drone_episode_ends needs collision_credit='involved' (eq. 6 charged to the drones it stops)"
+            )
         if self.simulator != "pointmass":
             problems.append("shared policies train on the point-mass simulator only")
         if problems:
@@ -151,11 +157,20 @@ SHARED_PRESETS["shared-quick-shielded"] = SHARED_PRESETS["shared-quick-local"].r
     shield=True,
     shield_penalty=1.0,
 )
+SHARED_PRESETS["shared-quick-drone-ends"] = SHARED_PRESETS["shared-quick-local"].replace(
+    # Stage 3 (``--init-from`` a shared-quick-local run). One collision ends the episode of every drone of the swarm,
+    # so in swarms of 8 the drones that had no part in it never practise the rest of the approach and the landing
+    # beside the others. Here a crash, collision or exit ends the episode of the drones in it only (they take off
+    # again from new starts), and eq. 6 is charged to them alone; the others fly on.
+    drone_episode_ends=True,
+    collision_credit="involved",
+)
 """Shared-policy presets. ``shared-quick``: the quick-cpu recipe (128-128 ReLU, training aids, noisy sensing,
 dynamics family) on swarms of 1 to 4 drones, each drone sensing its 3 nearest neighbours, 16 M drone steps;
 ``shared-quick-continue`` trains such a run on for 16 M more steps on swarms of 2 to 4; ``shared-quick-local``
 does so on swarms of 2, 4 and 8 with neighbours sensed within 0.2 m only (the shipped policy);
-``shared-quick-shielded`` trains that one on with the safety filter as a shield and a penalty on its corrections.
+``shared-quick-shielded`` trains that one on with the safety filter as a shield and a penalty on its corrections;
+``shared-quick-drone-ends`` trains it on with per-drone episode ends.
 N = 16 is never seen in training."""
 
 
@@ -184,6 +199,7 @@ def make_shared_env(config: SharedTrainConfig, seed: int | None = None) -> Share
         separation_margin=config.separation_margin,
         shield=SafetyFilterConfig() if config.shield else None,
         shield_penalty=config.shield_penalty,
+        drone_episode_ends=config.drone_episode_ends,
     )
 
 

@@ -36,6 +36,15 @@ taught to fly so that the filter has nothing to do, and the network alone is wha
 **Episodes.** A swarm's episode ends for all its drones at once (eq. 4's termination: all landed, a
 crash, a collision, a drone out of the arena, or the time limit). Drones that landed earlier stay
 entries until then; their actions are ignored and they earn only the shared terms.
+
+**Per-drone episode ends (training only, not in the paper; off by default).** With ``drone_episode_ends`` a crash,
+a collision or an exit ends the episode of the flying drones it happened to, not the swarm's: their entries end
+there (``done``, their last input as ``terminal_observation``), each is relaunched at once from a new random start
+(``LandingEpisodes.relaunch``, the same airframe taking off again) and begins its next episode in the same entry,
+while the other drones fly on. The swarm's episode then ends only when every drone is on its pad, or at the time
+limit. One collision used to end the episode of every drone in the swarm, so in swarms of 8 the drones that had no
+part in it never practised the rest of their approach, nor landing beside the others. eq. 6's ``alpha_c`` is
+charged to the drones in the collision only (this needs ``collision_credit="involved"``).
 """
 
 from __future__ import annotations
@@ -76,6 +85,7 @@ class SharedSwarmVecEnv(InProcessVecEnv):
         separation_margin: ``d_s`` (m), the distance below which the separation aid charges a flying drone.
         shield: a :class:`SafetyFilterConfig` (or its dict) to filter the commands with in training; None: no shield.
         shield_penalty: ``w_s >= 0``, reward lost per m/s of command change by the shield (needs ``shield``).
+        drone_episode_ends: end a crashing, colliding or escaping drone's episode alone (see the module doc).
 
     Entries are ordered group by group, then swarm by swarm, then drone by drone. ``infos`` of a
     finished swarm's drone 0 carry the swarm's episode (``episode``: mean per-drone return and length,
@@ -101,6 +111,7 @@ class SharedSwarmVecEnv(InProcessVecEnv):
         separation_margin: float = 0.22,
         shield: SafetyFilterConfig | dict[str, Any] | None = None,
         shield_penalty: float = 0.0,
+        drone_episode_ends: bool = False,
     ) -> None:
         if collision_credit not in ("swarm", "involved"):
             raise ValueError(f"collision_credit must be 'swarm' or 'involved', got {collision_credit!r}.")
@@ -130,6 +141,12 @@ class SharedSwarmVecEnv(InProcessVecEnv):
                 "is a rule of the flight, not of training); set low_velocity_step=0."
             )
         self.shield_penalty = float(shield_penalty)
+        if drone_episode_ends and collision_credit != "involved":
+            raise ValueError(
+                "drone_episode_ends needs collision_credit='involved': eq. 6 is charged to the drones whose episode "
+                f"it ends, not to the swarm flying on; got collision_credit={collision_credit!r}."
+            )
+        self.drone_episode_ends = bool(drone_episode_ends)
         sizes = tuple(swarm_sizes)
         if not sizes or any(isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 1 for n in sizes):
             raise ValueError(f"swarm_sizes must be a non-empty sequence of integers >= 1, got {swarm_sizes!r}.")
@@ -214,17 +231,37 @@ class SharedSwarmVecEnv(InProcessVecEnv):
                     self._last_obs[g], group_actions, self.pad_offsets[g], self.task.max_speed, self.shield
                 )
             outcome = episodes.step(group_actions)
-            group_rewards = self._separation_aids(episodes, outcome)  # before the resets below
+            nearest = self._nearest(episodes)
+            group_rewards = self._separation_aids(outcome, nearest)  # before the resets below
             if self.shield_penalty:
                 flying = ~outcome.landed | outcome.landed_now
                 group_rewards = group_rewards - self.shield_penalty * correction * flying
             rewards.append(group_rewards.reshape(-1))
             raw = outcome.obs
             group_obs = self._inputs(g, raw)
-            done = outcome.done
+            done, ended = outcome.done, None
+            truncated = np.broadcast_to(outcome.truncated[:, None], outcome.landed.shape)
+            if self.drone_episode_ends:
+                settled = outcome.landed.all(axis=-1)
+                time_up = (episodes.steps >= self.task.max_steps) & ~settled
+                done = settled | time_up
+                assert nearest is not None  # drone_episode_ends implies collision_credit="involved"
+                hit = outcome.crashed | outcome.out_of_arena | (nearest < self.task.collision_distance)
+                truncated = time_up[:, None] & ~hit  # a drone that crashed at the last step did not run out of time
+                ended = hit & ~outcome.landed & ~done[:, None]
+                if ended.any():
+                    entries = np.flatnonzero(ended.reshape(-1))
+                    for entry in entries.tolist():
+                        infos[lo + entry] = {
+                            "terminal_observation": group_obs[entry].copy(),
+                            "TimeLimit.truncated": False,
+                        }
+                    raw = raw.copy()
+                    raw[ended] = episodes.relaunch(ended)
+                    group_obs = self._inputs(g, raw)
             if done.any():
                 ids = np.flatnonzero(done)
-                self._finish(infos, lo, n, ids, outcome, group_obs)
+                self._finish(infos, lo, n, ids, outcome, group_obs, truncated)
                 raw = raw.copy()
                 raw[ids] = episodes.reset(ids)
                 group_obs = group_obs.reshape(e, n, -1)
@@ -232,16 +269,24 @@ class SharedSwarmVecEnv(InProcessVecEnv):
                 group_obs = group_obs.reshape(e * n, -1)
             self._last_obs[g] = raw
             obs.append(group_obs)
-            dones.append(np.repeat(done, n))
+            entry_done = np.repeat(done, n)
+            dones.append(entry_done if ended is None else entry_done | ended.reshape(-1))
         return np.concatenate(obs), np.concatenate(rewards).astype(np.float32), np.concatenate(dones), infos
 
-    def _separation_aids(self, episodes: LandingEpisodes, outcome: StepOutcome) -> np.ndarray:
-        """``outcome.agent_rewards`` ``(E, N)`` with the separation aids of the module doc applied."""
-        rewards = outcome.agent_rewards
+    def _nearest(self, episodes: LandingEpisodes) -> np.ndarray | None:
+        """Each drone's distance to its nearest other drone ``(E, N)`` m, from the true positions (the aids judge the
+        flight, not its noisy measurement); None where no aid needs it."""
         if self.collision_credit == "swarm" and not self.separation_penalty:
+            return None
+        pos = episodes.sim.state().pos
+        return np.sqrt(pairwise_offsets(pos)[1].min(axis=-1))  # sqrt is monotone: the nearest's distance
+
+    def _separation_aids(self, outcome: StepOutcome, nearest: np.ndarray | None) -> np.ndarray:
+        """``outcome.agent_rewards`` ``(E, N)`` with the separation aids of the module doc applied (``nearest`` from
+        :meth:`_nearest`)."""
+        rewards = outcome.agent_rewards
+        if nearest is None:
             return rewards
-        pos = episodes.sim.state().pos  # true positions: the aids judge the flight, not its noisy measurement
-        nearest = np.sqrt(pairwise_offsets(pos)[1].min(axis=-1))  # (E, N); sqrt is monotone: the nearest's distance
         rewards = rewards.copy()
         if self.collision_credit == "involved":
             alpha_c = self.task.alpha_c
@@ -253,9 +298,17 @@ class SharedSwarmVecEnv(InProcessVecEnv):
         return rewards
 
     def _finish(
-        self, infos: list[Any], lo: int, n: int, ids: np.ndarray, outcome: StepOutcome, entries: np.ndarray
+        self,
+        infos: list[Any],
+        lo: int,
+        n: int,
+        ids: np.ndarray,
+        outcome: StepOutcome,
+        entries: np.ndarray,
+        truncated: np.ndarray,
     ) -> None:
-        """Fill the infos of the drones of the swarms ``ids`` whose episodes just ended."""
+        """Fill the infos of the drones of the swarms ``ids`` whose episodes just ended (``truncated`` ``(E, N)``: each
+        drone cut off by the time limit)."""
         for swarm in ids.tolist():
             landed = outcome.landed[swarm]
             errors = outcome.landing_error[swarm][landed]
@@ -263,7 +316,7 @@ class SharedSwarmVecEnv(InProcessVecEnv):
             for drone in range(n):
                 infos[base + drone] = {
                     "terminal_observation": entries[swarm * n + drone].copy(),
-                    "TimeLimit.truncated": bool(outcome.truncated[swarm]),
+                    "TimeLimit.truncated": bool(truncated[swarm, drone]),
                 }
             infos[base].update(
                 is_success=bool(outcome.success[swarm]),
