@@ -434,6 +434,27 @@ def test_a_drone_already_down_is_not_commanded():
     assert [e.drone for e in mission.events if e.kind == "safety_filter"] == [0]
 
 
+class Sinking:
+    """A centralised two-drone policy sending both drones straight down at 1 m/s."""
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        return np.array([0.0, 0.0, -1.0, 0.0, 0.0, -1.0]) / 3.0
+
+
+def test_the_filter_logs_nothing_for_a_drone_no_longer_under_the_policy():
+    """Drone 2 is down, resting on its goal; the policy still asks it to sink at 1 m/s, which the filter would cap at
+    0.8 m/s for a settled drone. Nothing is sent to it, so no safety_filter event may name it (the 8-drone
+    rehearsal logged one such event per second for a drone at rest after an off-pad contact)."""
+    mission = flying_mission(phases=(DronePhase.POLICY, DronePhase.DOWN))
+    mission.runner.policy = Sinking()
+    est = estimate([[GOALS[0][0], GOALS[0][1], 1.5], GOALS[1]])
+    for k in range(4):
+        tick(mission, est, k)
+        assert list(mission.link.sent) == [0]
+    assert all(e.drone != 1 for e in mission.events if e.kind == "safety_filter")
+    assert not mission.output.filtered[1]
+
+
 def test_with_the_filter_off_the_mission_sends_the_policy_s_commands_unchanged():
     mission = flying_mission(enabled=False)
     assert mission.runner.safety_filter is None

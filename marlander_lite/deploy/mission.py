@@ -401,6 +401,7 @@ class Mission(LandingControl):
         (once per spell, :data:`~marlander_lite.deploy.mission_state.FILTER_SPELL_GAP_S`, not every step)."""
         settled = np.array([p not in UNDER_POLICY for p in self.phase])
         filtered, changed = self.runner.filter_velocity(velocity, est, settled)
+        changed &= ~settled  # a drone not under the policy is sent nothing: nothing of it was filtered
         for i in self.output.starts(changed, self.t):
             self.event("safety_filter", describe_filtering(self.names, i, est, velocity[i], filtered[i]), i)
         self.output.filtered = changed
