@@ -237,8 +237,9 @@ class LandingEpisodes:
     def relaunch(self, drones: np.ndarray) -> np.ndarray:
         """Start the drones where ``drones`` ``(num_envs, N)`` is True afresh, mid-episode, from new random starts (the
         simulator's ``relaunch``) while the others fly on; returns their first observations as the policy sees them,
-        ``(k, 13)`` (or the task's stacked size) for the ``k`` drones in ``drones`` (row-major order). Not part of the paper's MDP: the per-drone
-        episode ends of :class:`~marlander_lite.swarm.vec_env.SharedSwarmVecEnv`, a training aid, use it.
+        ``(k, 13)`` (or the task's stacked size) for the ``k`` drones in ``drones`` (row-major order). Not part of the
+        paper's MDP: the per-drone episode ends of :class:`~marlander_lite.swarm.vec_env.SharedSwarmVecEnv`, a training
+        aid, use it.
         """
         relaunch = getattr(self.sim, "relaunch", None)
         if relaunch is None:

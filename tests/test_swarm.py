@@ -375,6 +375,15 @@ def test_relaunch_starts_single_drones_afresh_and_checks_its_input():
     ("kwargs", "match"),
     [
         ({"drone_episode_ends": True}, "drone_episode_ends needs collision_credit='involved'"),
+        (
+            {
+                "drone_episode_ends": True,
+                "collision_credit": "involved",
+                "platform": "moving-arc",
+                "task": {"observe_platform_velocity": True, "observe_platform_acceleration": True},
+            },
+            "drone_episode_ends cannot relaunch a drone whose input holds the pad-acceleration estimate",
+        ),
         ({"collision_credit": "team"}, "collision_credit must be 'swarm' or 'involved'"),
         ({"separation_penalty": -1.0}, "separation_penalty must be a finite number >= 0"),
         ({"separation_margin": 0.0}, "separation_margin must be a finite distance > 0 m"),

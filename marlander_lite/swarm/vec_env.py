@@ -172,6 +172,11 @@ class SharedSwarmVecEnv(InProcessVecEnv):
             self.groups.append(LandingEpisodes(sim, sensing_config, None if seed is None else seed + g))
             self.pad_offsets.append(sim.motion.pad_offsets)
         self.task: TaskConfig = self.groups[0].task
+        if self.drone_episode_ends and self.task.observe_platform_acceleration:
+            raise ValueError(
+                "drone_episode_ends cannot relaunch a drone whose input holds the pad-acceleration estimate; "
+                "set observe_platform_acceleration=False."
+            )
         self.render_mode = None
         bounds = np.ones(shared_obs_size(self.neighbours, self.task.obs_per_drone), dtype=np.float32) * np.float32(
             max(OBS_LIMITS) * 2
