@@ -12,7 +12,7 @@
 Run::
 
     python benchmarks/rehearsal_campaign.py --config marlander_lite/deploy/example_lab_8.yaml \\
-        --policy data/policies/shared-quick-local.safetensors --seeds 0-19 [--simulator pointmass] [--controller pid]
+        --policy data/policies/shared-quick-local.safetensors --seeds 0-19 [--simulator rotorpy] [--controller pid]
 
 The config's simulation platform, its take-off height and its safety filter can be changed on the command line, e.g.
 the plate shuttling along a line at 0.4 m/s with the lab guide's moving-pad settings::
@@ -32,6 +32,7 @@ import numpy as np
 
 from marlander_lite.deploy.config import load_lab_config
 from marlander_lite.deploy.rehearsal.run import rehearse
+from marlander_lite.simulators import SIMULATORS
 from marlander_lite.swarm.safety_filter import parse_settings
 
 
@@ -46,7 +47,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--config", required=True, help="lab config YAML")
     parser.add_argument("--policy", required=True, help="policy file (.safetensors)")
     parser.add_argument("--seeds", default="0-19", help="seed range, e.g. 0-19")
-    parser.add_argument("--simulator", default=None, choices=("crazyflie", "pointmass"), help="default: the lab's")
+    parser.add_argument("--simulator", default=None, choices=SIMULATORS, help="default: the lab's")
     parser.add_argument("--controller", default=None, help="PyBullet tracker (firmware, pid); default: firmware")
     parser.add_argument("--platform", default=None, help="simulation.platform instead of the config's")
     parser.add_argument("--platform-speed", type=float, default=None, help="simulation.platform_speed (m/s)")

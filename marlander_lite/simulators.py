@@ -4,7 +4,8 @@ Everything that picks a simulator by name reads :data:`REGISTRY`: the gymnasium 
 :func:`register_simulator`), :func:`~marlander_lite.make.make_vec_env` and
 :func:`~marlander_lite.make.make_parallel_env`, the experiments' trials
 (:func:`~marlander_lite.experiments.protocol.make_episodes`) and the lab rehearsal's simulated world.
-Each simulator has one name everywhere: ``"pointmass"`` or ``"crazyflie"``.
+Each simulator has one name everywhere: ``"pointmass"``, ``"crazyflie"`` or ``"rotorpy"`` (the optional extra
+``rotorpy``: a simulator this project did not write, for flying policies trained here).
 
 An entry names its classes as ``"module:attr"`` strings and imports them on first use, so that a
 point-mass env never imports PyBullet::
@@ -193,8 +194,21 @@ register_simulator(
     )
 )
 
+register_simulator(
+    SimulatorEntry(
+        name="rotorpy",
+        env_id="marlander_lite/RotorPyLanding-v0",
+        swarm="marlander_lite.rotorpy_sim.simulator:RotorPySwarm",
+        gym_env="marlander_lite.rotorpy_sim.envs:RotorPyLandingEnv",
+        vec_env="marlander_lite.rotorpy_sim.envs:RotorPyVecEnv",
+        parallel_env="marlander_lite.rotorpy_sim.envs:rotorpy_parallel_env",
+        options="marlander_lite.rotorpy_sim.envs:RotorPyOptions",
+        description="RotorPy's Crazyflie under RotorPy's own velocity controller (a simulator we did not write).",
+    )
+)
+
 SIMULATORS: tuple[str, ...] = tuple(REGISTRY)
-"""The built-in simulators' names, ``("pointmass", "crazyflie")``: the choices the command line offers.
+"""The built-in simulators' names, ``("pointmass", "crazyflie", "rotorpy")``: the choices the command line offers.
 Simulators registered later are reachable by name everywhere too, but are not listed here."""
 
 # A Literal made from the entries above, so that the names are written once; tools that read it at run

@@ -5,9 +5,10 @@ policy file on each *column* (the point mass; PyBullet with our cascaded PID; Py
 Crazyflie firmware's own velocity tracker; that tracker perturbed: a 15 % heavier drone, 60 ms of
 command latency, velocity-loop gains x0.7 and x1.3; every PyBullet column with ground effect, drag
 and downwash on) and each *row* (the pad on the floor, on the UR10 flange, moving along an arc or a
-line at 0.2-0.5 m/s). Every column flies the same random starts (one seed per row and episode). Two more columns are
-flown only when asked for (:data:`EXTRA_COLUMNS`): the three sluggish perturbations at once, and a held-out tracker
-(gym-pybullet-drones' published PID gains, no tilt limit, bare physics) that nothing here was tuned on.
+line at 0.2-0.5 m/s). Every column flies the same random starts (one seed per row and episode). Three more columns
+are flown only when asked for (:data:`EXTRA_COLUMNS`): the three sluggish perturbations at once, a held-out tracker
+(gym-pybullet-drones' published PID gains, no tilt limit, bare physics) that nothing here was tuned on, and RotorPy, a
+simulator this project did not write.
 
 Besides success (with a Wilson interval) and landing error, each cell measures whether the flight is
 one a real Crazyflie can follow:
@@ -101,6 +102,7 @@ COLUMNS: tuple[Column, ...] = (
 EXTRA_COLUMNS: tuple[Column, ...] = (
     Column("firmware combined", "crazyflie", _firmware(mass_scale=1.15, latency_s=0.06, gain_scale=0.7)),
     Column("held-out DSL PID", "crazyflie", HELD_OUT_TRACKER),
+    Column("RotorPy Crazyflie", "rotorpy"),
 )
 """Columns flown only when asked for (``--columns``, or ``all``):
 
@@ -109,7 +111,9 @@ EXTRA_COLUMNS: tuple[Column, ...] = (
 * ``held-out DSL PID``: a tracker no policy or setting of this project was tuned on
   (:data:`~marlander_lite.crazyflie.perturb.HELD_OUT_TRACKER`: the cascaded PID with the gains gym-pybullet-drones
   publishes, no tilt limit, its under-damped attitude loop at 48 Hz, over that project's default physics). The kind of
-  independent simulator a lab reaches for first."""
+  independent simulator a lab reaches for first;
+* ``RotorPy Crazyflie``: a simulator this project did not write, RotorPy's Crazyflie under RotorPy's own velocity
+  controller (:mod:`marlander_lite.rotorpy_sim.simulator`; the optional extra ``rotorpy``)."""
 
 ROWS: tuple[Row, ...] = (
     Row("floor", "static-floor"),

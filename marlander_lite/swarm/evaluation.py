@@ -42,9 +42,9 @@ from marlander_lite.experiments.apf import APFConfig
 from marlander_lite.experiments.controllers import PIDAPFController
 from marlander_lite.experiments.metrics import CellSummary, TrialMetrics, summarise, wilson_interval
 from marlander_lite.platforms import PlateGeometry, PlatformConfig
-from marlander_lite.pointmass.simulator import PointMassSwarm
 from marlander_lite.policy_file import load_policy, read_contract
 from marlander_lite.sensing import SensingConfig
+from marlander_lite.simulators import SIMULATORS, simulator_entry
 from marlander_lite.swarm.policy import SharedPolicy
 from marlander_lite.swarm.safety_filter import BatchAct, SafetyFilterConfig, parse_settings, with_safety_filter
 from marlander_lite.task import TaskConfig
@@ -157,18 +157,12 @@ def make_episodes(
     task_changes: dict[str, Any] | None = None,
     **simulator_options: Any,
 ) -> LandingEpisodes:
-    """``num_envs`` swarms of ``num_drones`` in ``simulator`` (``pointmass`` or ``crazyflie``), static floor plate
-    and Vicon sensing by default. ``simulator_options`` go to the swarm (e.g. ``controller="firmware"``)."""
+    """``num_envs`` swarms of ``num_drones`` in ``simulator`` (any registered name: ``pointmass``, ``crazyflie``,
+    ``rotorpy``), static floor plate and Vicon sensing by default. ``simulator_options`` go to the swarm (e.g.
+    ``controller="firmware"``)."""
     task = evaluation_task(num_drones, time_limit_s, **(task_changes or {}))
-    platform = platform or PlatformConfig()
-    if simulator == "pointmass":
-        sim: Any = PointMassSwarm(task, platform, num_envs, **simulator_options)
-    elif simulator == "crazyflie":
-        from marlander_lite.crazyflie.simulator import CrazyflieSwarm  # PyBullet only when asked
-
-        sim = CrazyflieSwarm(task, platform, num_envs, **simulator_options)
-    else:
-        raise ValueError(f"Unknown simulator {simulator!r}; allowed: pointmass, crazyflie.")
+    # The registry imports the simulator's module only now: PyBullet or RotorPy only when asked for.
+    sim = simulator_entry(simulator).swarm_class()(task, platform or PlatformConfig(), num_envs, **simulator_options)
     return LandingEpisodes(sim, sensing or SensingConfig.vicon(), seed)
 
 
@@ -371,7 +365,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sizes", type=int, nargs="+", default=[2, 4, 8, 16])
     parser.add_argument("--trials", type=int, default=200)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--simulator", default="pointmass", choices=("pointmass", "crazyflie"))
+    parser.add_argument("--simulator", default="pointmass", choices=SIMULATORS)
     parser.add_argument("--firmware", action="store_true", help="crazyflie: the firmware velocity tracker")
     parser.add_argument(
         "--held-out",
