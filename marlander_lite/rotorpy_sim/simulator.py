@@ -15,8 +15,9 @@ What RotorPy simulates, as published (``rotorpy==3.0.0``, ``rotorpy.vehicles.cra
   once per control period, with the motor commands held between calls; scipy's RK45 integrates each period (its
   first step the whole period, see :class:`RotorPySwarm`).
 
-A 1 m/s step command in it reaches 0.68 m/s after 0.2 s and overshoots to 1.32 m/s at 0.5 s: a slower and less damped
-response than either PyBullet tracker (``tests/test_rotorpy.py``).
+A 1 m/s step command along x in it rises from 10 to 90 % in 0.16 s, after 0.12 s, and overshoots to 1.27 m/s at
+0.47 s, the body tilting 33 degrees on the way: a less damped response than either PyBullet tracker, neither of which
+overshoots (``tests/test_rotorpy.py``; docs/transfer.md, "RotorPy").
 
 What is ours: the world around the drones. :class:`RotorPySwarm` is the point-mass simulator's world (plates and
 pads, their motion, the random starts, contacts with the floor and the plate, landed drones held on their pads: all
@@ -107,7 +108,7 @@ class RotorPySwarm(PointMassSwarm):
         """RotorPy's Crazyflie parameters as flown."""
         # RotorPy's integrator (RK45, scipy's tolerances) with its first step set to the whole period: left to choose,
         # scipy starts a near-hover flight at about 1 us and needs 32 evaluations a period instead of 7, for the same
-        # states to 1e-8 (tests/test_rotorpy.py).
+        # states to 1e-6 m and m/s (tests/test_rotorpy.py).
         integrator = {"method": "RK45", "first_step": task_config.dt / self.control_periods}
         self._vehicle, self._unpowered = (
             multirotor(
