@@ -10,7 +10,7 @@ from marlander_lite.envs.gym_env import SwarmLandingEnv
 from marlander_lite.envs.options import EnvOptions
 from marlander_lite.envs.parallel_env import SwarmParallelEnv
 from marlander_lite.envs.vec_env import LandingVecEnv
-from marlander_lite.rotorpy_sim.simulator import RotorPySwarm, crazyflie_params
+from marlander_lite.rotorpy_sim.simulator import RotorPySwarm, control_periods, crazyflie_params
 
 
 @dataclass(frozen=True)
@@ -32,6 +32,7 @@ class RotorPyOptions(EnvOptions):
             kind = type(self.quad_params).__name__
             raise TypeError(f"quad_params must be a mapping of RotorPy parameter names to values, got {kind}.")
         crazyflie_params(self.quad_params)
+        control_periods(self.control_hz, self.task_config.policy_hz)
 
     def make_simulator(self, num_envs: int = 1) -> RotorPySwarm:
         """``num_envs`` RotorPy swarms."""
@@ -47,7 +48,8 @@ class RotorPyLandingEnv(SwarmLandingEnv):
     The MARLander task (Aschu et al.) in a simulator this project did not write: RotorPy's Crazyflie (rigid body,
     rotor lag, rotor drag) under RotorPy's own velocity controller (:mod:`marlander_lite.rotorpy_sim.simulator`).
     The plates, pads, starts and contacts are the point-mass simulator's. Meant for evaluating policies trained
-    elsewhere: one 24 Hz step of two drones takes about 20 ms on a 2-core machine, a thousand times the point mass's.
+    elsewhere: one 24 Hz step of two drones takes about 20 ms on a 2-core machine, over a thousand times the point
+    mass's.
 
     ## Action Space
     ``Box(-1, 1, (3N,), float32)``: for each drone in turn, a velocity command along world x, y, z as a fraction of
