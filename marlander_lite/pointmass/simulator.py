@@ -190,13 +190,8 @@ class PointMassSwarm:
         self.pos[env_ids] = task.sample_spawn_positions(
             rng, self._plate_pos[env_ids, 2], self.task, self._pads[env_ids]
         )
-        for array in (self.vel, self.ang_vel, self.quat, self._thrust_dir):
-            array[env_ids] = 0.0
-        self.quat[env_ids, :, 3] = 1.0
-        self._thrust_dir[env_ids, :, 2] = 1.0
+        self._at_rest(env_ids)
         self.contact[env_ids] = task.CONTACT_NONE
-        self.landed[env_ids] = False
-        self.motors_stopped[env_ids] = False
 
     def step(self, velocity: np.ndarray) -> None:
         if self.engine == "numba":
@@ -251,12 +246,7 @@ class PointMassSwarm:
         if pos.shape != (self.task.num_drones, 3) or not np.isfinite(pos).all():
             raise ValueError(f"drone_pos must be a finite ({self.task.num_drones}, 3) array, got shape {pos.shape}.")
         self.pos[env_id] = pos
-        for array in (self.vel, self.ang_vel, self.quat, self._thrust_dir):
-            array[env_id] = 0.0
-        self.quat[env_id, :, 3] = 1.0
-        self._thrust_dir[env_id, :, 2] = 1.0
-        self.landed[env_id] = False
-        self.motors_stopped[env_id] = False
+        self._at_rest(env_id)
 
     def relaunch(self, drones: np.ndarray, rng: np.random.Generator, tries: int = 20) -> None:
         """Put the drones where ``drones`` ``(num_envs, N)`` is True at new random starting positions, at rest and
@@ -282,13 +272,8 @@ class PointMassSwarm:
             keep = (nearest_sq >= self.task.spawn_separation**2) | (attempt == tries - 1)
             self.pos[pending[keep]] = candidate[keep]
             pending = pending[~keep]
-        for array in (self.vel, self.ang_vel, self.quat, self._thrust_dir):
-            array[drones] = 0.0
-        self.quat[drones, 3] = 1.0
-        self._thrust_dir[drones, 2] = 1.0
+        self._at_rest(drones)
         self.contact[drones] = task.CONTACT_NONE
-        self.landed[drones] = False
-        self.motors_stopped[drones] = False
         if self.family is not None:  # commands in flight to the old flight are dropped
             self._commands[:, drones] = 0.0
 
@@ -298,6 +283,16 @@ class PointMassSwarm:
         self.motors_stopped |= np.asarray(stopped, dtype=bool)
 
     # ------------------------------------------------------------------ internals
+    def _at_rest(self, index: np.ndarray | int) -> None:
+        """The drones ``index`` selects (whole envs, or single drones by a ``(num_envs, N)`` mask): at rest, level
+        (thrust axis up), not landed, motors on. Where they are is the caller's."""
+        self.vel[index] = 0.0
+        self.ang_vel[index] = 0.0
+        self.quat[index] = IDENTITY_QUAT
+        self._thrust_dir[index] = (0.0, 0.0, 1.0)
+        self.landed[index] = False
+        self.motors_stopped[index] = False
+
     def _thrust(self, velocity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Acceleration over the next step and the thrust axis it is produced along (see PointMassParams)."""
         wanted = (velocity - self.vel) * self._gain
