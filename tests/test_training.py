@@ -48,6 +48,21 @@ def test_presets_are_valid_and_unknown_names_list_the_presets():
         get_preset("turbo")
 
 
+def test_quick_cpu_smooth_is_the_recipe_its_shipped_cone2_runs_recorded():
+    """The preset as it is now (the steeper approach cone) is what trained the shipped ``quick-cpu-smooth-cone2`` runs,
+    apart from the thread count (one each, trained side by side) and the seed."""
+    from pathlib import Path
+
+    preset = get_preset("quick-cpu-smooth")
+    assert preset.task["approach_cone_slope"] == 2.0 and preset.task["approach_cone_penalty"] == 1.0
+    runs = Path(__file__).resolve().parents[1] / "data" / "runs"
+    for name, seed in (("quick-cpu-smooth-cone2", 0), ("quick-cpu-smooth-cone2-seed1", 1)):
+        recorded = TrainConfig.from_dict(json.loads((runs / name / "config.json").read_text())["train"])
+        assert recorded == preset.replace(torch_threads=1, seed=seed), name
+    before = TrainConfig.from_dict(json.loads((runs / "quick-cpu-smooth" / "config.json").read_text())["train"])
+    assert before == preset.replace(task={k: v for k, v in preset.task.items() if k != "approach_cone_slope"})
+
+
 @pytest.mark.parametrize(
     ("change", "message"),
     [
@@ -146,6 +161,7 @@ def test_quickstart_trains_evaluates_on_both_simulators_and_plots(capsys, tmp_pa
     config = json.loads((out / "config.json").read_text())
     assert config["preset"] == "quick-cpu-smooth"
     assert config["train"]["smoothness_temporal"] == 1.0 and config["train"]["platform_height"] == [0.005, 1.0]
+    assert config["train"]["task"]["approach_cone_slope"] == 2.0
     for name in ("static-floor", "static-elevated", "crazyflie-firmware"):
         summary = json.loads((out / f"evaluation-{name}.json").read_text())
         assert 0.0 <= summary["success_rate"] <= 1.0 and summary["episodes"] > 0

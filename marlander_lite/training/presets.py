@@ -25,7 +25,7 @@ class TrainConfig:
     """A complete PPO training run."""
 
     simulator: str = "pointmass"
-    """Which simulator to train in: ``pointmass`` or ``crazyflie``."""
+    """Which simulator to train in: a registered name (``pointmass``, ``crazyflie``, ``rotorpy``)."""
     num_drones: int = 2
     """Drones per swarm (the policy is centralised over them, as in the paper)."""
     platform: str = "static-floor"
@@ -234,7 +234,14 @@ mass); with it (``moving-smooth-16m``, one seed) 98-99.5 % there and >= 78.5 % i
 ``single-agent`` preset uses it: with it, 8 M steps (``single-agent-smooth-8m``) land 99 % on static pads in PyBullet
 with our PID, where 3 M steps without it landed 85-90 % (docs/reproduction.md)."""
 _MOVING_PLATFORMS = {"platform": "moving-arc", "platform_speed": (0.0, 0.6), "platform_height": (0.005, 1.0)}
+STEEP_APPROACH_CONE = {"approach_cone_slope": 2.0}
+"""The approach-cone aid asking for 2 m of height per metre from the pad instead of 1 (``quick-cpu-smooth``): a drone
+then centres over its pad before its last tens of centimetres of descent. With slope 1, ``quick-cpu-smooth`` was
+still 10 cm off its pad centre 1 s before touching down in RotorPy and landed 2.17-2.62 cm from it; with slope 2
+(seeds 0 and 1) 97-100 % in all ten columns of the transfer matrix at 0.67-2.04 cm, RotorPy included
+(docs/transfer.md). Slope 3 (one seed) landed 1.87 cm from the centre in RotorPy's UR10 row, against 1.57 cm."""
 _QUICK_SMOOTH = _QUICK.replace(
+    task={**TRAINING_AIDS, **STEEP_APPROACH_CONE},
     total_steps=12_000_000,
     critic_arch=(64, 64),
     learning_rate=5e-4,
@@ -254,9 +261,13 @@ trains within 10 minutes on 2 cores:
 * 1024 consecutive pairs per CAPS gradient instead of the whole 4096-sample minibatch (at 4096 the aid doubled the
   cost of an update), and both cores for PyTorch's update (a sweep then trains one seed at a time by default).
 
-Seed 0, trained alone in 8.2 min on the 2-core development VM, and seed 1 land 95.5-100 % in every static column of the
-transfer matrix at 0.74-2.17 cm (docs/transfer.md); the 14 M-step version before it (a 128-128 critic, constant 3e-4,
-``quick-cpu-smooth-14m``) took 11.9 min."""
+* the steeper approach cone (:data:`STEEP_APPROACH_CONE`, since 2026-11-27; shipped as ``quick-cpu-smooth-cone2``
+  and ``-seed1``).
+
+Seed 0 of the version before the steeper cone (``quick-cpu-smooth``), trained alone in 8.2 min on the 2-core
+development VM, and its seed 1 land 95.5-100 % in every static column of the transfer matrix at 0.74-2.17 cm but 2.17 /
+2.62 cm in RotorPy; the 14 M-step version before it (a 128-128 critic, constant 3e-4, ``quick-cpu-smooth-14m``) took
+11.9 min (docs/transfer.md)."""
 
 PRESETS: dict[str, TrainConfig] = {
     "quick-cpu": _QUICK,
@@ -291,8 +302,8 @@ FINETUNE_PRESETS = ("crazyflie-finetune", "moving-crazyflie-finetune")
 
 PRESET_NOTES: dict[str, str] = {
     "quick-cpu": "2 drones, floor pad, point mass with a dynamics family, 128-128 ReLU, 8 M steps: minutes on 2 cores.",
-    "quick-cpu-smooth": "quick-cpu on plates of every height with smooth commands, 12 M steps, 2 threads: lands in "
-    "every static column of the transfer matrix; under 10 min on 2 cores.",
+    "quick-cpu-smooth": "quick-cpu on plates of every height with smooth commands and a steeper approach cone, 12 M "
+    "steps, 2 threads: lands in every static column of the transfer matrix, RotorPy included; about 10 min on 2 cores.",
     "paper": "the paper's 512-512-256-128 ReLU policy, 20 M steps, point mass (about 45 min on 2 cores).",
     "crazyflie-finetune": "continue a quick-cpu/paper run in the PyBullet Crazyflie swarm, 3 M steps (~30 min).",
     "moving": "beyond the paper: observes the platform velocity; UR10 arcs at 0-0.6 m/s, floor to 1 m, smooth "
