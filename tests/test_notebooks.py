@@ -500,8 +500,28 @@ def check_08(shown: Shown) -> None:
                 assert close(float(rate), 100 * float(cells[row]["success_rate"]), 0.051), (r, row)
     [(landed, flown)] = shown.numbers(r"^flown here: quick-cpu-smooth on RotorPy, floor: (\d+) of (\d+) landed")
     assert flown >= 1 and 0 <= landed <= flown
-    # step responses (with and without RotorPy), transfer bars, the pad's acceleration, the late descent, the swing
-    assert shown.figures == 6
+    # Section 4j: the steeper approach cone. The table's extremes are the shipped matrices' own, and both slope-2
+    # seeds meet the quick-cpu targets in every cell; the slope-1 policy misses the landing error in RotorPy.
+    title = "| policy | cells | lowest success % | largest landing error, cm |"
+    cone = {r["policy"]: r for r in markdown_rows(title + shown.text.split(title, 1)[1].split("\n\n", 1)[0])}
+    sources = {
+        "slope 1 (quick-cpu-smooth)": ["quick-cpu-smooth", "quick-cpu-smooth-combined", "quick-cpu-smooth-held-out",
+                                       "quick-cpu-smooth-rotorpy"],
+        "slope 2, seed 0": ["quick-cpu-smooth-cone2"],
+        "slope 2, seed 1": ["quick-cpu-smooth-cone2-seed1"],
+        "slope 2, the preset (two threads)": ["quick-cpu-smooth-cone2-bench"],
+    }  # fmt: skip
+    assert set(cone) == set(sources)
+    for name, folders in sources.items():
+        cells = [c for f in folders for c in read_csv(RESULTS / "transfer" / f / "transfer.csv")]
+        assert int(cone[name]["cells"]) == len(cells) == 20, name
+        lowest, largest = (float(cone[name][k]) for k in ("lowest success %", "largest landing error, cm"))
+        assert close(lowest, 100 * min(float(c["success_rate"]) for c in cells), 0.051), name
+        assert close(largest, max(float(c["landing_error_cm"]) for c in cells), 0.0051), name
+        assert (lowest >= 90.0 and largest <= 2.26) == name.startswith("slope 2"), name
+    # step responses (with and without RotorPy), transfer bars, the pad's acceleration, the late descent, the swing,
+    # the steeper cone's landing errors
+    assert shown.figures == 7
 
 
 def check_09(shown: Shown) -> None:

@@ -204,7 +204,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--preset",
         choices=QUICKSTART_PRESETS,
         default=QUICKSTART_PRESETS[0],
-        help="quick-cpu-smooth (default: lands in every static column of the transfer matrix, 8 min on 2 cores) "
+        help="quick-cpu-smooth (default: lands in every static column of the transfer matrix, 9 min on 2 cores) "
         "or quick-cpu (6.5 min, floor pad, 2.7 cm from the pad centre)",
     )
     quick.add_argument("--seed", type=non_negative_int, default=0)
