@@ -19,7 +19,7 @@ import numpy as np
 
 from marlander_lite import task
 from marlander_lite.experiments.protocol import trial_seed
-from marlander_lite.experiments.transfer import _find_column, _find_row, build_episodes, cell_actor
+from marlander_lite.experiments.transfer import build_episodes, cell_actor, find_column, find_row
 from marlander_lite.policy_file import load_policy
 
 BEFORE_S = (0.5, 1.0, 1.5, 2.0)
@@ -28,7 +28,7 @@ BEFORE_S = (0.5, 1.0, 1.5, 2.0)
 def landings(policy_path: str, column: str, row: str, episodes: int) -> np.ndarray:
     """One row per landing: error, the offsets ``BEFORE_S`` seconds before (m), height 1 s before (m), the ratio."""
     policy = load_policy(policy_path)
-    world = build_episodes(policy, _find_column(column), _find_row(row), "vicon")
+    world = build_episodes(policy, find_column(column), find_row(row), "vicon")
     cfg, act = world.task, cell_actor(policy, world, None)
     found = []
     try:

@@ -158,7 +158,8 @@ class CellResult:
     """Episodes that reached the time limit without every drone landed."""
 
 
-def _find_column(name: str) -> Column:
+def find_column(name: str) -> Column:
+    """The column called ``name`` (in :data:`COLUMNS` or :data:`EXTRA_COLUMNS`); unknown names raise, listing them."""
     for column in COLUMNS + EXTRA_COLUMNS:
         if column.name == name:
             return column
@@ -166,7 +167,8 @@ def _find_column(name: str) -> Column:
     raise ValueError(f"Unknown transfer column {name!r}; allowed: {allowed}.")
 
 
-def _find_row(name: str) -> Row:
+def find_row(name: str) -> Row:
+    """The row called ``name`` (from :data:`ROWS`); an unknown name raises with the list."""
     for row in ROWS:
         if row.name == name:
             return row
@@ -203,7 +205,7 @@ def fly_cell(
     (:mod:`marlander_lite.swarm.safety_filter`), which then changes every command before it is flown."""
     started = time.perf_counter()
     policy = load_policy(policy_path)
-    column, row = _find_column(column_name), _find_row(row_name)
+    column, row = find_column(column_name), find_row(row_name)
     world = build_episodes(policy, column, row, sensing)
     cfg = world.task
     act = cell_actor(policy, world, safety_filter)
@@ -352,9 +354,9 @@ class TransferConfig:
         if not self.columns or not self.rows:
             raise ValueError("Give at least one column and one row.")
         for name in self.columns:
-            _find_column(name)
+            find_column(name)
         for name in self.rows:
-            _find_row(name)
+            find_row(name)
         if self.safety_filter is not None:
             SafetyFilterConfig.from_dict(self.safety_filter)  # unknown or invalid settings fail before any flight
 
