@@ -261,8 +261,8 @@ trains within 10 minutes on 2 cores:
 * 1024 consecutive pairs per CAPS gradient instead of the whole 4096-sample minibatch (at 4096 the aid doubled the
   cost of an update), and both cores for PyTorch's update (a sweep then trains one seed at a time by default).
 
-* the steeper approach cone (:data:`STEEP_APPROACH_CONE`, since 2026-11-27; shipped as ``quick-cpu-smooth-cone2``
-  and ``-seed1``).
+* the steeper approach cone (:data:`STEEP_APPROACH_CONE`, since 2026-11-27; shipped as ``quick-cpu-smooth-cone2-bench``,
+  the preset exactly, trained alone in 9.1 min, and ``quick-cpu-smooth-cone2`` / ``-seed1`` with one thread each).
 
 Seed 0 of the version before the steeper cone (``quick-cpu-smooth``), trained alone in 8.2 min on the 2-core
 development VM, and its seed 1 land 95.5-100 % in every static column of the transfer matrix at 0.74-2.17 cm but 2.17 /
@@ -303,7 +303,7 @@ FINETUNE_PRESETS = ("crazyflie-finetune", "moving-crazyflie-finetune")
 PRESET_NOTES: dict[str, str] = {
     "quick-cpu": "2 drones, floor pad, point mass with a dynamics family, 128-128 ReLU, 8 M steps: minutes on 2 cores.",
     "quick-cpu-smooth": "quick-cpu on plates of every height with smooth commands and a steeper approach cone, 12 M "
-    "steps, 2 threads: lands in every static column of the transfer matrix, RotorPy included; about 10 min on 2 cores.",
+    "steps, 2 threads: lands in every static column of the transfer matrix, RotorPy included; about 9 min on 2 cores.",
     "paper": "the paper's 512-512-256-128 ReLU policy, 20 M steps, point mass (about 45 min on 2 cores).",
     "crazyflie-finetune": "continue a quick-cpu/paper run in the PyBullet Crazyflie swarm, 3 M steps (~30 min).",
     "moving": "beyond the paper: observes the platform velocity; UR10 arcs at 0-0.6 m/s, floor to 1 m, smooth "
