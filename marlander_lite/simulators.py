@@ -4,8 +4,9 @@ Everything that picks a simulator by name reads :data:`REGISTRY`: the gymnasium 
 :func:`register_simulator`), :func:`~marlander_lite.make.make_vec_env` and
 :func:`~marlander_lite.make.make_parallel_env`, the experiments' trials
 (:func:`~marlander_lite.experiments.protocol.make_episodes`) and the lab rehearsal's simulated world.
-Each simulator has one name everywhere: ``"pointmass"``, ``"crazyflie"`` or ``"rotorpy"`` (the optional extra
-``rotorpy``: a simulator this project did not write, for flying policies trained here).
+Each simulator has one name everywhere: ``"pointmass"``, ``"crazyflie"``, ``"rotorpy"`` or ``"pyflyt"`` (the
+optional extras ``rotorpy`` and ``pyflyt``: two simulators this project did not write, for flying policies trained
+here).
 
 An entry names its classes as ``"module:attr"`` strings and imports them on first use, so that a
 point-mass env never imports PyBullet::
@@ -206,10 +207,22 @@ register_simulator(
         description="RotorPy's Crazyflie under RotorPy's own velocity controller (a simulator we did not write).",
     )
 )
+register_simulator(
+    SimulatorEntry(
+        name="pyflyt",
+        env_id="marlander_lite/PyFlytLanding-v0",
+        swarm="marlander_lite.pyflyt_sim.simulator:PyFlytSwarm",
+        gym_env="marlander_lite.pyflyt_sim.envs:PyFlytLandingEnv",
+        vec_env="marlander_lite.pyflyt_sim.envs:PyFlytVecEnv",
+        parallel_env="marlander_lite.pyflyt_sim.envs:pyflyt_parallel_env",
+        options="marlander_lite.pyflyt_sim.envs:PyFlytOptions",
+        description="PyFlyt's Crazyflie under PyFlyt's own cascaded PID (a second simulator we did not write).",
+    )
+)
 
 SIMULATORS: tuple[str, ...] = tuple(REGISTRY)
-"""The built-in simulators' names, ``("pointmass", "crazyflie", "rotorpy")``: the choices the command line offers.
-Simulators registered later are reachable by name everywhere too, but are not listed here."""
+"""The built-in simulators' names, ``("pointmass", "crazyflie", "rotorpy", "pyflyt")``: the choices the command line
+offers. Simulators registered later are reachable by name everywhere too, but are not listed here."""
 
 # A Literal made from the entries above, so that the names are written once; tools that read it at run
 # time (argument parsers, config loaders) see the choices. Static type checkers see a plain str.

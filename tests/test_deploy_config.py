@@ -246,7 +246,7 @@ def test_the_old_simulator_name_still_loads_with_a_warning_naming_the_new_one(tm
     with pytest.warns(FutureWarning, match="write 'crazyflie'"):
         assert SimulationConfig(simulator="pybullet").simulator == "crazyflie"
     example["simulation"]["simulator"] = "bullet"
-    allowed = r"simulation.simulator: Input should be 'pointmass', 'crazyflie' or 'rotorpy'"
+    allowed = r"simulation.simulator: Input should be 'pointmass', 'crazyflie', 'rotorpy' or 'pyflyt'"
     with pytest.raises(ConfigError, match=allowed):
         LabConfig.from_dict(example)
 
@@ -254,4 +254,4 @@ def test_the_old_simulator_name_still_loads_with_a_warning_naming_the_new_one(tm
 def test_the_simulators_a_lab_can_rehearse_with_are_the_registered_ones():
     from marlander_lite.simulators import SIMULATORS
 
-    assert SIMULATOR_KINDS == SIMULATORS == ("pointmass", "crazyflie", "rotorpy")
+    assert SIMULATOR_KINDS == SIMULATORS == ("pointmass", "crazyflie", "rotorpy", "pyflyt")

@@ -181,7 +181,7 @@ def test_a_simulator_registered_by_one_entry_is_reachable_by_every_face(sluggish
 
     with pytest.raises(TypeError, match=r"\['wind'\]; allowed options: num_drones.*, tau"):
         marlander_lite.make_vec_env("sluggish", wind=3.0)
-    with pytest.raises(ValueError, match="allowed: pointmass, crazyflie, rotorpy, sluggish"):
+    with pytest.raises(ValueError, match="allowed: pointmass, crazyflie, rotorpy, pyflyt, sluggish"):
         simulator_entry("mujoco")
 
 

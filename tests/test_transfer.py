@@ -333,7 +333,7 @@ def test_the_combined_column_is_asked_for_by_name_and_applies_all_three_perturba
         main(["transfer", POLICY, "--columns", "firmware everything"])
     err = capsys.readouterr().err
     assert "unknown column(s) 'firmware everything'" in err
-    assert "firmware combined, held-out DSL PID, RotorPy Crazyflie (or all)" in err
+    assert "firmware combined, held-out DSL PID, RotorPy Crazyflie, PyFlyt Crazyflie (or all)" in err
 
 
 def test_the_held_out_column_flies_the_published_gains_over_bare_physics() -> None:

@@ -18,6 +18,8 @@ trained on it dives at its pad and arrives with its sideways speed still unbrake
 Either tracker can be identified (``controller="pid"`` or ``"firmware"``, optionally with a
 :class:`~marlander_lite.crazyflie.perturb.Perturbation`); :func:`identify_trackers` fits the point
 mass to the variants in :data:`TRACKER_VARIANTS`, which bound the point mass's domain randomisation.
+:func:`simulator_response` records any registered simulator the same way, so that the trackers of simulators
+this project did not write (RotorPy, PyFlyt) can be placed against those bounds (docs/transfer.md, "PyFlyt").
 """
 
 from __future__ import annotations
@@ -30,9 +32,9 @@ import numpy as np
 
 from marlander_lite.crazyflie.params import PhysicsConfig
 from marlander_lite.crazyflie.perturb import Controller, Perturbation
-from marlander_lite.crazyflie.simulator import CrazyflieSwarm
 from marlander_lite.platforms import PlatformConfig
 from marlander_lite.pointmass.simulator import PointMassParams, PointMassSwarm
+from marlander_lite.simulators import simulator_entry
 from marlander_lite.task import TaskConfig
 
 START = np.array([0.0, 0.0, 2.0])
@@ -83,10 +85,22 @@ def crazyflie_response(
     """Velocities of a PyBullet Crazyflie after each policy step, ``(K, T, 3)`` m/s, for commands ``(K, T, 3)``.
 
     Each of the K sequences starts from hover at :data:`START`, on a ``static-floor`` platform,
-    flown by ``controller`` with ``perturbation`` (see :class:`CrazyflieSwarm`).
+    flown by ``controller`` with ``perturbation`` (see :class:`~marlander_lite.crazyflie.simulator.CrazyflieSwarm`).
     """
-    task = task.replace(num_drones=1)
-    sim = CrazyflieSwarm(task, PlatformConfig(), physics=physics, controller=controller, perturbation=perturbation)
+    return simulator_response(
+        commands, task, "crazyflie", physics=physics, controller=controller, perturbation=perturbation
+    )
+
+
+def simulator_response(commands: np.ndarray, task: TaskConfig, simulator: str, **options: Any) -> np.ndarray:
+    """Velocities of one drone of ``simulator`` after each policy step, ``(K, T, 3)`` m/s, for commands ``(K, T, 3)``.
+
+    ``simulator`` is any registered name whose swarm can ``place`` a drone (``"crazyflie"``, ``"rotorpy"``,
+    ``"pyflyt"``, ...); ``options`` go to its swarm class (e.g. ``controller="firmware"``). Each of the K sequences
+    starts from hover at :data:`START` on a ``static-floor`` platform, so that any simulator's velocity tracker can be
+    identified as the PyBullet ones are (``fit_point_mass(commands, simulator_response(...))``).
+    """
+    sim = simulator_entry(simulator).swarm_class()(task.replace(num_drones=1), PlatformConfig(), 1, **options)
     out = np.zeros_like(commands)
     try:
         for k, sequence in enumerate(commands):

@@ -103,6 +103,7 @@ EXTRA_COLUMNS: tuple[Column, ...] = (
     Column("firmware combined", "crazyflie", _firmware(mass_scale=1.15, latency_s=0.06, gain_scale=0.7)),
     Column("held-out DSL PID", "crazyflie", HELD_OUT_TRACKER),
     Column("RotorPy Crazyflie", "rotorpy"),
+    Column("PyFlyt Crazyflie", "pyflyt"),
 )
 """Columns flown only when asked for (``--columns``, or ``all``):
 
@@ -113,7 +114,9 @@ EXTRA_COLUMNS: tuple[Column, ...] = (
   publishes, no tilt limit, its under-damped attitude loop at 48 Hz, over that project's default physics). The kind of
   independent simulator a lab reaches for first;
 * ``RotorPy Crazyflie``: a simulator this project did not write, RotorPy's Crazyflie under RotorPy's own velocity
-  controller (:mod:`marlander_lite.rotorpy_sim.simulator`; the optional extra ``rotorpy``)."""
+  controller (:mod:`marlander_lite.rotorpy_sim.simulator`; the optional extra ``rotorpy``);
+* ``PyFlyt Crazyflie``: a second one, PyFlyt's Crazyflie under PyFlyt's own cascaded PID
+  (:mod:`marlander_lite.pyflyt_sim.simulator`; the optional extra ``pyflyt``)."""
 
 ROWS: tuple[Row, ...] = (
     Row("floor", "static-floor"),
@@ -193,7 +196,7 @@ def build_episodes(policy: MLPPolicy, column: Column, row: Row, sensing: str) ->
 
 def fly_cell(
     policy_path: str,
-    column_name: str,
+    column_name: str | Column,
     row_name: str,
     episodes: int,
     seed: int,
@@ -202,10 +205,12 @@ def fly_cell(
 ) -> CellResult:
     """Fly ``episodes`` episodes of one cell (runs in a worker process). ``safety_filter``: None, or the settings
     (changes to :class:`SafetyFilterConfig`'s defaults, ``{}`` for none) of the deployment's safety filter
-    (:mod:`marlander_lite.swarm.safety_filter`), which then changes every command before it is flown."""
+    (:mod:`marlander_lite.swarm.safety_filter`), which then changes every command before it is flown. A
+    :class:`Column` may be given for ``column_name``: a simulator setting none of the named columns is."""
     started = time.perf_counter()
     policy = load_policy(policy_path)
-    column, row = find_column(column_name), find_row(row_name)
+    column = column_name if isinstance(column_name, Column) else find_column(column_name)
+    row = find_row(row_name)
     world = build_episodes(policy, column, row, sensing)
     cfg = world.task
     act = cell_actor(policy, world, safety_filter)

@@ -25,7 +25,7 @@ class TrainConfig:
     """A complete PPO training run."""
 
     simulator: str = "pointmass"
-    """Which simulator to train in: a registered name (``pointmass``, ``crazyflie``, ``rotorpy``)."""
+    """Which simulator to train in: a registered name (``pointmass``, ``crazyflie``, ``rotorpy``, ``pyflyt``)."""
     num_drones: int = 2
     """Drones per swarm (the policy is centralised over them, as in the paper)."""
     platform: str = "static-floor"
