@@ -44,8 +44,7 @@ from typing import Any
 import numpy as np
 
 from marlander_lite.platforms import PlatformConfig
-from marlander_lite.pointmass.simulator import PointMassSwarm
-from marlander_lite.rotorpy_sim.simulator import control_periods
+from marlander_lite.pointmass.hosted import HostedDroneSwarm, control_periods
 from marlander_lite.task import CONTACT_NONE, TaskConfig
 
 PYFLYT_HINT = "the PyFlyt simulator needs the PyFlyt package: pip install -e .[pyflyt] (environment.lock pins it)"
@@ -66,7 +65,7 @@ def _aviary_class() -> type:
     return Aviary
 
 
-class PyFlytSwarm(PointMassSwarm):
+class PyFlytSwarm(HostedDroneSwarm):
     """``num_envs`` swarms of PyFlyt Crazyflies over the point-mass simulator's plates (see the module docstring).
 
     Implements :class:`~marlander_lite.episodes.Simulator`; world frame, metres, m/s. Swarm ``e`` is PyFlyt world
@@ -119,17 +118,7 @@ class PyFlytSwarm(PointMassSwarm):
             for drone in range(self.task.num_drones):
                 self._take_off_fresh(int(env), drone)
 
-    def step(self, velocity: np.ndarray) -> None:
-        velocity = np.asarray(velocity, dtype=float)
-        if velocity.shape != self.pos.shape:
-            raise ValueError(f"velocity must have shape {self.pos.shape} (num_envs, N, 3), got {velocity.shape}.")
-        if not np.isfinite(velocity).all():
-            raise ValueError("velocity must be finite (no NaN or inf).")
-        self.time += self._dt
-        if self.platform.is_moving:
-            self._update_platform()
-        start = self.pos.copy()
-        flying = ~self.landed
+    def _fly_period(self, velocity: np.ndarray, active: np.ndarray) -> None:
         for env, aviary in enumerate(self.aviaries):
             for drone, quad in enumerate(aviary.drones):
                 if self.motors_stopped[env, drone]:
@@ -139,18 +128,10 @@ class PyFlytSwarm(PointMassSwarm):
                 else:
                     vx, vy, vz = velocity[env, drone]
                     quad.setpoint = np.array([vx, vy, 0.0, vz])
-        # A drone resting on a surface (before take-off) flies on; one that reaches a surface now is read no further.
-        resting = self.contact != CONTACT_NONE
-        reached = np.zeros_like(flying)
-        for _ in range(self.control_periods):
-            for aviary in self.aviaries:
-                aviary.step()
-            self._read(flying & ~reached)
-            rest_height, _ = self._surface()
-            reached |= flying & ~resting & (self.pos[..., 2] <= rest_height)
-        self._resolve_contacts(start)
-        if self.landed.any():
-            self._hold_landed()
+            aviary.step()
+        self._read(active)
+
+    def _after_contacts(self) -> None:
         # Our contact step moved these drones (onto a surface, or onto their pad): PyBullet follows.
         for env, drone in zip(*np.nonzero(self.landed | (self.contact != CONTACT_NONE)), strict=True):
             self._write(int(env), int(drone))

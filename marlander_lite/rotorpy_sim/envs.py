@@ -10,7 +10,8 @@ from marlander_lite.envs.gym_env import SwarmLandingEnv
 from marlander_lite.envs.options import EnvOptions
 from marlander_lite.envs.parallel_env import SwarmParallelEnv
 from marlander_lite.envs.vec_env import LandingVecEnv
-from marlander_lite.rotorpy_sim.simulator import RotorPySwarm, control_periods, crazyflie_params
+from marlander_lite.pointmass.hosted import control_periods
+from marlander_lite.rotorpy_sim.simulator import RotorPySwarm, crazyflie_params
 
 
 @dataclass(frozen=True)

@@ -36,9 +36,9 @@ from typing import Any
 import numpy as np
 
 from marlander_lite.platforms import PlatformConfig
-from marlander_lite.pointmass.simulator import PointMassSwarm
+from marlander_lite.pointmass.hosted import HostedDroneSwarm, control_periods
 from marlander_lite.rotations import rotate_vector
-from marlander_lite.task import CONTACT_NONE, TaskConfig
+from marlander_lite.task import TaskConfig
 
 ROTORPY_HINT = "the RotorPy simulator needs the rotorpy package: pip install -e .[rotorpy] (environment.lock pins it)"
 
@@ -67,24 +67,7 @@ def crazyflie_params(changes: Mapping[str, Any] | None = None) -> dict[str, Any]
     return {**params, **changes}
 
 
-def control_periods(control_hz: float, policy_hz: float) -> int:
-    """RotorPy control periods per policy step, ``control_hz / policy_hz``.
-
-    Raises:
-        ValueError: ``control_hz`` is not a whole multiple (>= 1) of the policy rate.
-    """
-    periods = (
-        control_hz / policy_hz if isinstance(control_hz, int | float) and not isinstance(control_hz, bool) else 0.0
-    )
-    if not (np.isfinite(periods) and periods >= 1 and abs(periods - round(periods)) < 1e-9):
-        raise ValueError(
-            f"control_hz must be a whole multiple of the policy rate ({policy_hz:g} Hz), got {control_hz!r}; "
-            f"for example {4 * policy_hz:g}."
-        )
-    return round(periods)
-
-
-class RotorPySwarm(PointMassSwarm):
+class RotorPySwarm(HostedDroneSwarm):
     """``num_envs`` swarms of RotorPy Crazyflies over the point-mass simulator's plates (see the module docstring).
 
     Implements :class:`~marlander_lite.episodes.Simulator`; world frame, metres, m/s. Each drone is one RotorPy state
@@ -136,29 +119,10 @@ class RotorPySwarm(PointMassSwarm):
         super().reset(env_ids, rng)
         self._rotor_speeds[env_ids] = self._hover_speed
 
-    def step(self, velocity: np.ndarray) -> None:
-        velocity = np.asarray(velocity, dtype=float)
-        if velocity.shape != self.pos.shape:
-            raise ValueError(f"velocity must have shape {self.pos.shape} (num_envs, N, 3), got {velocity.shape}.")
-        if not np.isfinite(velocity).all():
-            raise ValueError("velocity must be finite (no NaN or inf).")
-        self.time += self._dt
-        if self.platform.is_moving:
-            self._update_platform()
-        start = self.pos.copy()
-        flying = ~self.landed
-        # A drone resting on a surface (before take-off) flies on; one that reaches a surface now stops there.
-        resting = self.contact != CONTACT_NONE
-        reached = np.zeros_like(flying)
+    def _fly_period(self, velocity: np.ndarray, active: np.ndarray) -> None:
         period = self._dt / self.control_periods
-        for _ in range(self.control_periods):
-            for env, drone in zip(*np.nonzero(flying & ~reached), strict=True):
-                self._advance(env, drone, velocity[env, drone], period)
-            rest_height, _ = self._surface()
-            reached |= flying & ~resting & (self.pos[..., 2] <= rest_height)
-        self._resolve_contacts(start)
-        if self.landed.any():
-            self._hold_landed()
+        for env, drone in zip(*np.nonzero(active), strict=True):
+            self._advance(env, drone, velocity[env, drone], period)
 
     # ------------------------------------------------------------------ rehearsal extras
     def place(self, env_id: int, drone_pos: np.ndarray) -> None:
