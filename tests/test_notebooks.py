@@ -25,6 +25,7 @@ import pytest
 from nbclient import NotebookClient
 
 from marlander_lite.experiments.controllers import CONTROLLER_LABELS
+from marlander_lite.pointmass.family import DynamicsFamily
 
 ROOT = Path(__file__).resolve().parents[1]
 NOTEBOOKS = ROOT / "notebooks"
@@ -519,9 +520,37 @@ def check_08(shown: Shown) -> None:
         assert close(lowest, 100 * min(float(c["success_rate"]) for c in cells), 0.051), name
         assert close(largest, max(float(c["landing_error_cm"]) for c in cells), 0.0051), name
         assert (lowest >= 90.0 and largest <= 2.26) == name.startswith("slope 2"), name
-    # step responses (with and without RotorPy), transfer bars, the pad's acceleration, the late descent, the swing,
-    # the steeper cone's landing errors
-    assert shown.figures == 7
+    # Section 4k: PyFlyt, a second simulator we did not write. Its step response is far slower than the command; its
+    # fitted horizontal time constant lies beyond the family's slowest; the table is the shipped -pyflyt files'; on the
+    # point mass the same policy lands fewer episodes with a 0.8 s horizontal loop than with a 0.2 s one.
+    [(half_second, _)] = shown.numbers(r"^PyFlyt: (\S+) m/s after 0.5 s of a 1.5 m/s command, peak (\S+) m/s$")
+    assert 0.2 < half_second < 1.0
+    [(tau, family_slowest)] = shown.numbers(
+        r"^PyFlyt's horizontal velocity time constant: (\S+) s \(family up to (\S+) s\)$"
+    )
+    assert family_slowest == DynamicsFamily().velocity_time_constant[1] and tau > 1.5 * family_slowest
+    title = "| policy | alone | through the filter | touchdown alone, m/s |"
+    on_pyflyt = markdown_rows(title + shown.text.split(title, 1)[1].split("\n\n", 1)[0])
+    folders = {p.parent.name for p in (RESULTS / "transfer").glob("*-pyflyt*/transfer.csv")}
+    assert {r["policy"] + "-pyflyt" for r in on_pyflyt} == {f for f in folders if f.endswith("-pyflyt")} != set()
+    causes = ("collisions", "crashes_too_fast", "crashes_off_pad", "out_of_arena", "timeouts")
+    for r in on_pyflyt:
+        for side, suffix in (("alone", "-pyflyt"), ("through the filter", "-pyflyt-safety-filter")):
+            if r[side] == "-":
+                assert r["policy"] + suffix not in folders, r
+                continue
+            cells = {c["row"]: c for c in read_csv(RESULTS / "transfer" / (r["policy"] + suffix) / "transfer.csv")}
+            assert {c["column"] for c in cells.values()} == {"PyFlyt Crazyflie"}
+            for row, rate in re.findall(r"(floor|UR10|arc 0.2-0.5 m/s|line 0.2-0.5 m/s) (\S+) %", r[side]):
+                assert close(float(rate), 100 * float(cells[row]["success_rate"]), 0.051), (r, row)
+            if side == "alone":
+                failed = [int(n) for n in r["alone: collisions / too fast / off pad / out / timeouts"].split(" / ")]
+                assert failed == [sum(int(c[cause]) for c in cells.values()) for cause in causes], r
+    landed = dict(shown.numbers(r"^point mass with a (\S+) s horizontal velocity loop: (\d+) of \d+ landed"))
+    assert set(landed) == {0.2, 0.8} and landed[0.8] < landed[0.2]
+    # step responses (with and without RotorPy, and with PyFlyt), transfer bars, the pad's acceleration, the late
+    # descent, the swing, the steeper cone's landing errors
+    assert shown.figures == 8
 
 
 def check_09(shown: Shown) -> None:
