@@ -20,7 +20,6 @@ from scipy.spatial.transform import Rotation
 
 from marlander_lite.crazyflie.fit import fit_commands, fit_point_mass, simulator_response
 from marlander_lite.episodes import LandingEpisodes
-from marlander_lite.experiments.transfer import TransferConfig, transfer_matrix
 from marlander_lite.pointmass.family import DynamicsFamily
 from marlander_lite.pyflyt_sim.envs import PyFlytOptions
 from marlander_lite.pyflyt_sim.simulator import ALTITUDE, hover_throttle
@@ -174,22 +173,6 @@ def test_bad_options_say_what_is_allowed():
         PyFlytOptions(control_hz=72.0)  # 3 x 24 Hz, but 240 / 72 is no whole number of physics steps
     with pytest.raises(ValueError, match="drone_model must be one of"):
         PyFlytOptions(drone_model="fixedwing")
-
-
-def test_the_transfer_matrix_flies_the_pyflyt_column():
-    config = TransferConfig(
-        policy="data/policies/quick-cpu-smooth-cone2.safetensors",
-        episodes=2,
-        columns=("PyFlyt Crazyflie",),
-        rows=("floor",),
-        workers=1,
-    )
-    (cell,) = transfer_matrix(config)
-    assert cell.column == "PyFlyt Crazyflie" and cell.episodes == 2
-    failures = sum(getattr(cell, name) for name in ("collisions", "crashes_too_fast", "crashes_off_pad",
-                                                    "out_of_arena", "timeouts"))  # fmt: skip
-    assert cell.successes + failures == 2
-    assert 0.0 <= cell.tilt_limit_fraction <= 1.0
 
 
 def test_identified_as_the_pybullet_trackers_pyflyts_tracker_is_slower_than_the_family():

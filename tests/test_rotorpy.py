@@ -18,7 +18,6 @@ from rotorpy.vehicles.crazyflie_params import quad_params
 from rotorpy.vehicles.multirotor import Multirotor
 
 from marlander_lite.episodes import LandingEpisodes
-from marlander_lite.experiments.transfer import TransferConfig, transfer_matrix
 from marlander_lite.rotorpy_sim.envs import RotorPyOptions
 from marlander_lite.task import CONTACT_OWN_PAD
 
@@ -174,20 +173,3 @@ def test_changed_parameters_are_flown():
         soft.step(np.array([[[1.0, 0.0, 0.0]]]))
         stiff.step(np.array([[[1.0, 0.0, 0.0]]]))
     assert soft.vel[0, 0, 0] < stiff.vel[0, 0, 0]
-
-
-@pytest.mark.slow
-def test_the_transfer_matrix_flies_the_rotorpy_column():
-    config = TransferConfig(
-        policy="data/policies/quick-cpu-smooth.safetensors",
-        episodes=2,
-        columns=("RotorPy Crazyflie",),
-        rows=("floor",),
-        workers=1,
-    )
-    (cell,) = transfer_matrix(config)
-    assert cell.column == "RotorPy Crazyflie" and cell.episodes == 2
-    failures = sum(getattr(cell, name) for name in ("collisions", "crashes_too_fast", "crashes_off_pad",
-                                                    "out_of_arena", "timeouts"))  # fmt: skip
-    assert cell.successes + failures == 2
-    assert np.isfinite(cell.touchdown_speed) and 0.0 <= cell.tilt_limit_fraction <= 1.0

@@ -348,3 +348,18 @@ def test_the_held_out_column_flies_the_published_gains_over_bare_physics() -> No
         assert world.sim.perturbation.is_nominal
     finally:
         world.sim.close()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("column", "package"), [("RotorPy Crazyflie", "rotorpy"), ("PyFlyt Crazyflie", "PyFlyt")])
+def test_the_matrix_flies_the_simulators_we_did_not_write(column, package):
+    pytest.importorskip(package)
+    config = transfer.TransferConfig(
+        policy="data/policies/quick-cpu-smooth.safetensors", episodes=2, columns=(column,), rows=("floor",), workers=1
+    )
+    (cell,) = transfer.transfer_matrix(config)
+    assert cell.column == column and cell.episodes == 2
+    causes = ("collisions", "crashes_too_fast", "crashes_off_pad", "out_of_arena", "timeouts")
+    assert cell.successes + sum(getattr(cell, cause) for cause in causes) == 2
+    assert 0.0 <= cell.tilt_limit_fraction <= 1.0
+    assert np.isnan(cell.touchdown_speed) or cell.touchdown_speed > 0.0  # NaN: no drone touched down

@@ -196,7 +196,7 @@ def build_episodes(policy: MLPPolicy, column: Column, row: Row, sensing: str) ->
 
 def fly_cell(
     policy_path: str,
-    column_name: str | Column,
+    column: str | Column,
     row_name: str,
     episodes: int,
     seed: int,
@@ -205,11 +205,11 @@ def fly_cell(
 ) -> CellResult:
     """Fly ``episodes`` episodes of one cell (runs in a worker process). ``safety_filter``: None, or the settings
     (changes to :class:`SafetyFilterConfig`'s defaults, ``{}`` for none) of the deployment's safety filter
-    (:mod:`marlander_lite.swarm.safety_filter`), which then changes every command before it is flown. A
-    :class:`Column` may be given for ``column_name``: a simulator setting none of the named columns is."""
+    (:mod:`marlander_lite.swarm.safety_filter`), which then changes every command before it is flown. ``column``
+    is a column's name or a :class:`Column` (a simulator setting none of the named columns is)."""
     started = time.perf_counter()
     policy = load_policy(policy_path)
-    column = column_name if isinstance(column_name, Column) else find_column(column_name)
+    column = column if isinstance(column, Column) else find_column(column)
     row = find_row(row_name)
     world = build_episodes(policy, column, row, sensing)
     cfg = world.task
