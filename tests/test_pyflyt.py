@@ -152,20 +152,6 @@ def test_a_touchdown_on_the_own_pad_lands_when_slow_and_crashes_when_fast(sink, 
     sim.close()
 
 
-def test_the_same_seed_flies_the_same_episode():
-    def rollout():
-        env = PyFlytOptions(num_drones=2, sensing="vicon").build(1)
-        episodes = LandingEpisodes(*env, seed=7)
-        obs = [episodes.reset()]
-        actions = np.random.default_rng(3).uniform(-0.3, 0.3, (6, 1, 6))
-        for action in actions:
-            obs.append(episodes.step(action).obs)
-        env[0].close()
-        return np.stack(obs)
-
-    np.testing.assert_array_equal(rollout(), rollout())
-
-
 def test_bad_options_say_what_is_allowed():
     with pytest.raises(ValueError, match="whole multiple of the policy rate"):
         PyFlytOptions(control_hz=100.0)

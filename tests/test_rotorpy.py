@@ -136,19 +136,6 @@ def test_a_touchdown_on_the_own_pad_lands_when_slow_and_crashes_when_fast(sink, 
         assert sim.contact[0, 0] == CONTACT_OWN_PAD
 
 
-def test_the_same_seed_flies_the_same_episode():
-    def rollout():
-        env = RotorPyOptions(num_drones=2, sensing="vicon").build(1)
-        episodes = LandingEpisodes(*env, seed=7)
-        obs = [episodes.reset()]
-        actions = np.random.default_rng(3).uniform(-0.3, 0.3, (6, 1, 6))
-        for action in actions:
-            obs.append(episodes.step(action).obs)
-        return np.stack(obs)
-
-    np.testing.assert_array_equal(rollout(), rollout())
-
-
 def test_bad_options_say_what_is_allowed():
     for rate in (100.0, 0.0, float("nan"), "96"):  # refused where given, before anything is built
         with pytest.raises(ValueError, match=r"control_hz must be a whole multiple of the policy rate \(24 Hz\)"):

@@ -27,6 +27,7 @@ from marlander_lite.envs.gym_env import SwarmLandingEnv
 from marlander_lite.envs.options import EnvOptions
 from marlander_lite.envs.parallel_env import SwarmParallelEnv
 from marlander_lite.envs.vec_env import LandingVecEnv
+from marlander_lite.episodes import LandingEpisodes
 from marlander_lite.platforms import PlatformConfig
 from marlander_lite.pointmass.envs import PointMassOptions
 from marlander_lite.pointmass.simulator import PointMassParams, PointMassSwarm
@@ -55,6 +56,20 @@ def test_every_entry_round_trips_through_gymnasium_and_the_factories(name):
     vec.close()
     assert issubclass(entry.options_class(), EnvOptions)
     assert marlander_lite.ENV_IDS[name] == entry.env_id
+
+
+@pytest.mark.parametrize("name", SIMULATORS)
+def test_the_same_seed_flies_the_same_episode_in_every_simulator(name):
+    def rollout():
+        simulator, sensing = simulator_entry(name).options_class()(num_drones=2, sensing="vicon").build(1)
+        episodes = LandingEpisodes(simulator, sensing, seed=7)
+        obs = [episodes.reset()]
+        for action in np.random.default_rng(3).uniform(-0.3, 0.3, (6, 1, 6)):
+            obs.append(episodes.step(action).obs)
+        simulator.close()
+        return np.stack(obs)
+
+    np.testing.assert_array_equal(rollout(), rollout())
 
 
 def test_the_bare_simulator_class_is_built_as_the_experiments_and_the_rehearsal_build_it():
