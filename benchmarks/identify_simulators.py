@@ -8,7 +8,7 @@ and their mirror images, then 0.5 s at rest, from hover 2 m up), recorded by ``s
 ranges beside them, so that one reads which simulators lie inside the family a policy was trained on and which do
 not (docs/transfer.md, "PyFlyt").
 
-    python benchmarks/identify_simulators.py [--simulators crazyflie-pid,crazyflie-firmware,rotorpy,pyflyt]
+    python benchmarks/identify_simulators.py [--simulators crazyflie-pid,crazyflie-firmware,rotorpy,pyflyt,pyflyt-0.21]
 """
 
 from __future__ import annotations
@@ -24,8 +24,11 @@ SIMULATORS = {
     "crazyflie-pid": ("crazyflie", {"controller": "pid"}),
     "crazyflie-firmware": ("crazyflie", {"controller": "firmware"}),
     "rotorpy": ("rotorpy", {}),
-    "pyflyt": ("pyflyt", {}),
+    "pyflyt": ("pyflyt", {"read_state": "after_physics"}),
+    "pyflyt-0.21": ("pyflyt", {"read_state": "before_physics"}),
 }
+"""Name -> (simulator, its options). ``pyflyt`` steps PyFlyt as releases since 0.22 do, ``pyflyt-0.21`` as the pinned
+0.21.0 does (its controllers read the state before the physics step: ``pyflyt_sim.simulator._aviary_class``)."""
 
 
 def main() -> None:

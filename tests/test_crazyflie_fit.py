@@ -25,6 +25,7 @@ from marlander_lite.crazyflie.fit import (
     fits_table,
     identify_trackers,
     point_mass_response,
+    position_hold,
 )
 from marlander_lite.pointmass.simulator import PointMassParams
 from marlander_lite.task import TaskConfig
@@ -93,3 +94,10 @@ def test_identify_trackers_fits_both_trackers_and_the_perturbations_move_the_fit
     rpm_min = 0.2685 * 20000 + 4070.3
     assert fw.max_sink_acceleration == pytest.approx(9.81 - 4 * 3.16e-10 * rpm_min**2 / 0.027, rel=0.05)
     assert heavy.max_climb_acceleration < 0.85 * fw.max_climb_acceleration  # 15 % more mass, same motors
+
+
+def test_position_hold_records_one_row_per_policy_step_and_a_point_mass_holds_exactly():
+    # The nominal point mass has no noise and no bias: held at its start from rest, it does not move at all.
+    errors = position_hold(TaskConfig(num_drones=1), "pointmass", seconds=2.0)
+    assert errors.shape == (48, 3)
+    assert np.abs(errors).max() < 1e-9

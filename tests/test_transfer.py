@@ -333,7 +333,8 @@ def test_the_combined_column_is_asked_for_by_name_and_applies_all_three_perturba
         main(["transfer", POLICY, "--columns", "firmware everything"])
     err = capsys.readouterr().err
     assert "unknown column(s) 'firmware everything'" in err
-    assert "firmware combined, held-out DSL PID, RotorPy Crazyflie, PyFlyt Crazyflie (or all)" in err
+    extra = "firmware combined, held-out DSL PID, RotorPy Crazyflie, PyFlyt Crazyflie, PyFlyt Crazyflie 0.22 (or all)"
+    assert extra in err
 
 
 def test_the_held_out_column_flies_the_published_gains_over_bare_physics() -> None:
@@ -350,8 +351,24 @@ def test_the_held_out_column_flies_the_published_gains_over_bare_physics() -> No
         world.sim.close()
 
 
+@pytest.mark.parametrize(
+    ("column", "read_state"), [("PyFlyt Crazyflie", "before_physics"), ("PyFlyt Crazyflie 0.22", "after_physics")]
+)
+def test_the_two_pyflyt_columns_step_pyflyt_as_their_releases_do(column, read_state) -> None:
+    """The shipped PyFlyt cells keep their meaning (0.21.0's step); the 0.22 column reads states after the physics."""
+    pytest.importorskip("PyFlyt")
+    world = transfer.build_episodes(load_policy(POLICY), transfer.find_column(column), transfer.ROWS[0], "perfect")
+    try:
+        assert world.sim.read_state == read_state
+    finally:
+        world.sim.close()
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize(("column", "package"), [("RotorPy Crazyflie", "rotorpy"), ("PyFlyt Crazyflie", "PyFlyt")])
+@pytest.mark.parametrize(
+    ("column", "package"),
+    [("RotorPy Crazyflie", "rotorpy"), ("PyFlyt Crazyflie", "PyFlyt"), ("PyFlyt Crazyflie 0.22", "PyFlyt")],
+)
 def test_the_matrix_flies_the_simulators_we_did_not_write(column, package):
     pytest.importorskip(package)
     config = transfer.TransferConfig(

@@ -19,7 +19,8 @@ Either tracker can be identified (``controller="pid"`` or ``"firmware"``, option
 :class:`~marlander_lite.crazyflie.perturb.Perturbation`); :func:`identify_trackers` fits the point
 mass to the variants in :data:`TRACKER_VARIANTS`, which bound the point mass's domain randomisation.
 :func:`simulator_response` records any registered simulator the same way, so that the trackers of simulators
-this project did not write (RotorPy, PyFlyt) can be placed against those bounds (docs/transfer.md, "PyFlyt").
+this project did not write (RotorPy, PyFlyt) can be placed against those bounds (docs/transfer.md, "PyFlyt"), and
+:func:`position_hold` checks that a simulator's tracker holds a hover at all.
 """
 
 from __future__ import annotations
@@ -111,6 +112,28 @@ def simulator_response(commands: np.ndarray, task: TaskConfig, simulator: str, *
     finally:
         sim.close()
     return out
+
+
+def position_hold(
+    task: TaskConfig, simulator: str, seconds: float, gain: float = 1.0, seed: int = 0, **options: Any
+) -> np.ndarray:
+    """Position errors (m) of one drone of ``simulator`` held at :data:`START` by ``v = -gain (p - START)``, ``(T, 3)``.
+
+    One row per policy step over ``seconds``. A velocity tracker that follows its commands holds a hover this way to
+    millimetres; one that wanders shows it here, before any policy is blamed (PyFlyt 0.21.0's step order: its ``cf2x``
+    wanders along y and not along x, ``pyflyt_sim.simulator._aviary_class``). ``options`` go to the swarm class.
+    """
+    sim = simulator_entry(simulator).swarm_class()(task.replace(num_drones=1), PlatformConfig(), 1, **options)
+    errors = np.zeros((round(seconds * task.policy_hz), 3))
+    try:
+        sim.reset(np.arange(1), np.random.default_rng(seed))
+        sim.place(0, START[None])
+        for t in range(len(errors)):
+            sim.step((-gain * (sim.pos[0, 0] - START))[None, None])
+            errors[t] = sim.pos[0, 0] - START
+    finally:
+        sim.close()
+    return errors
 
 
 def point_mass_response(commands: np.ndarray, task: TaskConfig, params: PointMassParams) -> np.ndarray:

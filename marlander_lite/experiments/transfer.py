@@ -103,7 +103,8 @@ EXTRA_COLUMNS: tuple[Column, ...] = (
     Column("firmware combined", "crazyflie", _firmware(mass_scale=1.15, latency_s=0.06, gain_scale=0.7)),
     Column("held-out DSL PID", "crazyflie", HELD_OUT_TRACKER),
     Column("RotorPy Crazyflie", "rotorpy"),
-    Column("PyFlyt Crazyflie", "pyflyt"),
+    Column("PyFlyt Crazyflie", "pyflyt", {"read_state": "before_physics"}),
+    Column("PyFlyt Crazyflie 0.22", "pyflyt", {"read_state": "after_physics"}),
 )
 """Columns flown only when asked for (``--columns``, or ``all``):
 
@@ -116,7 +117,10 @@ EXTRA_COLUMNS: tuple[Column, ...] = (
 * ``RotorPy Crazyflie``: a simulator this project did not write, RotorPy's Crazyflie under RotorPy's own velocity
   controller (:mod:`marlander_lite.rotorpy_sim.simulator`; the optional extra ``rotorpy``);
 * ``PyFlyt Crazyflie``: a second one, PyFlyt's Crazyflie under PyFlyt's own cascaded PID
-  (:mod:`marlander_lite.pyflyt_sim.simulator`; the optional extra ``pyflyt``)."""
+  (:mod:`marlander_lite.pyflyt_sim.simulator`; the optional extra ``pyflyt``), stepped as the pinned 0.21.0 steps it:
+  its controllers read every state one physics step late, which leaves its ``cf2x`` wandering along y;
+* ``PyFlyt Crazyflie 0.22``: the same, stepped as PyFlyt does since 0.22 (states read after the physics step), the
+  PyFlyt its users fly today (``read_state`` in :class:`~marlander_lite.pyflyt_sim.envs.PyFlytOptions`)."""
 
 ROWS: tuple[Row, ...] = (
     Row("floor", "static-floor"),

@@ -9,7 +9,7 @@ from marlander_lite.envs.gym_env import SwarmLandingEnv
 from marlander_lite.envs.options import EnvOptions
 from marlander_lite.envs.parallel_env import SwarmParallelEnv
 from marlander_lite.envs.vec_env import LandingVecEnv
-from marlander_lite.pyflyt_sim.simulator import PyFlytSwarm, resolve_control_hz
+from marlander_lite.pyflyt_sim.simulator import READ_STATES, PyFlytSwarm, ReadState, resolve_control_hz
 
 DRONE_MODELS = ("cf2x",)
 """PyFlyt ``QuadX`` models offered: its Crazyflie 2.x (PyFlyt ships others, not Crazyflies)."""
@@ -24,16 +24,26 @@ class PyFlytOptions(EnvOptions):
     ``None``, PyFlyt's own 120 Hz where the policy rate divides it, else 240 Hz."""
     drone_model: str = "cf2x"
     """The PyFlyt ``QuadX`` model: ``"cf2x"``, its Crazyflie 2.x."""
+    read_state: ReadState = "after_physics"
+    """When PyFlyt's controllers read the drone states: ``"after_physics"``, as PyFlyt does since 0.22, or
+    ``"before_physics"``, one physics step late, as the pinned 0.21.0 does (``pyflyt_sim.simulator._aviary_class``)."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
         if self.drone_model not in DRONE_MODELS:
             raise ValueError(f"drone_model must be one of {DRONE_MODELS}, got {self.drone_model!r}.")
+        if self.read_state not in READ_STATES:
+            raise ValueError(
+                f"read_state must be one of {READ_STATES}, got {self.read_state!r}: "
+                '"after_physics" flies PyFlyt as releases since 0.22 do, "before_physics" as 0.21.0 does.'
+            )
         resolve_control_hz(self.control_hz, self.task_config.policy_hz)
 
     def make_simulator(self, num_envs: int = 1) -> PyFlytSwarm:
         """``num_envs`` PyFlyt swarms."""
-        return PyFlytSwarm(self.task_config, self.platform_config, num_envs, self.control_hz, self.drone_model)
+        return PyFlytSwarm(
+            self.task_config, self.platform_config, num_envs, self.control_hz, self.drone_model, self.read_state
+        )
 
 
 class PyFlytLandingEnv(SwarmLandingEnv):

@@ -18,6 +18,13 @@ model and its ``cf2x.yaml``):
   episode here starts from a drone that has been hovering: its motors and integrators as they are after 20 s of
   hover, as RotorPy starts with its rotors at hover speed). Yaw rate is commanded zero.
 
+One thing is not as 0.21.0 publishes it, by default: the order of its ``Aviary.step``. 0.21.0 reads each drone's state
+before the physics step, so its controllers act on a state one physics step old, and its ``cf2x`` then never holds
+still along y (a 0.17 m standard deviation in PyFlyt's own position mode, 0.01 m along x). PyFlyt reads the state
+after the physics step since 0.22.0, and both axes hold to 5 mm; those releases cap numpy below 2, which our pinned
+numpy is not, so ``read_state="after_physics"`` (the default) flies 0.21.0 in the later order and
+``"before_physics"`` exactly as 0.21.0 steps (see :func:`_aviary_class`).
+
 Measured here (``tests/test_pyflyt.py``; docs/transfer.md, "PyFlyt"): a 1 m/s step rises from 10 to 90 % in about
 0.9 s (0.18 s to 1.05 s); the point mass fitted to its go-and-brake answers (:func:`marlander_lite.crazyflie.fit.
 simulator_response`) has a horizontal velocity time constant near 0.8 s, where the firmware tracker's is 0.16-0.27 s
@@ -38,8 +45,9 @@ zero throttle.
 from __future__ import annotations
 
 import contextlib
+import functools
 import io
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -56,13 +64,57 @@ HOVER_SETTLE_S = 20.0
 VELOCITY_MODE, MOTOR_MODE = 6, -1  # PyFlyt QuadX flight modes: (vx, vy, yaw rate, vz), and raw motor throttles
 
 
-def _aviary_class() -> type:
-    """PyFlyt's ``Aviary``, imported now (PyFlyt is an optional extra)."""
+ReadState = Literal["after_physics", "before_physics"]
+READ_STATES: tuple[str, ...] = ("after_physics", "before_physics")
+"""When PyFlyt's ``Aviary.step`` reads the drone states its controllers act on: see :func:`_aviary_class`."""
+
+
+@functools.cache
+def _aviary_class(read_state: ReadState = "after_physics") -> type:
+    """PyFlyt's ``Aviary`` (PyFlyt is an optional extra, imported now), stepped with its states read ``read_state``.
+
+    ``"before_physics"`` is ``PyFlyt==0.21.0``'s own ``Aviary.step``: in each physics step the drones read their
+    states (``update_state``) *before* ``stepSimulation``, so every control period acts on a state one physics step
+    (1/240 s) old. From 0.22.0 on, PyFlyt reads them after ``stepSimulation`` [Tai2023]. The order matters: with the
+    stale state, a ``cf2x`` in PyFlyt's own position mode wanders along y with a 0.17 m standard deviation while x
+    holds to 0.01 m (with the state read after the physics step, both hold to 5 mm; docs/transfer.md, "PyFlyt").
+    ``"after_physics"`` is 0.21.0's ``Aviary`` with that later order, the PyFlyt every release since 0.22 flies; we
+    cannot install those releases, whose ``numpy<2`` requirement conflicts with our pinned numpy.
+    """
     try:
         from PyFlyt.core import Aviary
     except ImportError as error:  # pragma: no cover - depends on the installation
         raise ImportError(PYFLYT_HINT) from error
-    return Aviary
+    if read_state == "before_physics":
+        return Aviary
+    if read_state != "after_physics":
+        raise ValueError(f"read_state must be one of {READ_STATES}, got {read_state!r}.")
+
+    class AviaryReadingAfterPhysics(Aviary):
+        """PyFlyt 0.21.0's ``Aviary`` whose ``step`` reads the drones' states after ``stepSimulation``, as 0.22 does."""
+
+        def step(self) -> None:
+            # 0.21.0's Aviary.step without rendering (we never render), update_state moved after stepSimulation.
+            self.contact_array &= False
+            for physics_step in range(self.updates_per_step):
+                for drone in self.armed_drones:
+                    if physics_step % drone.physics_control_ratio == 0:
+                        drone.update_control()
+                for drone in self.armed_drones:
+                    drone.update_physics()
+                self.stepSimulation()
+                for drone in self.armed_drones:
+                    drone.update_state()
+                for collision in self.getContactPoints():
+                    self.contact_array[collision[1], collision[2]] = True
+                    self.contact_array[collision[2], collision[1]] = True
+                self.physics_steps += 1
+                self.elapsed_time = self.physics_steps / self.physics_hz
+            for drone in self.armed_drones:
+                drone.update_last()
+            self.aviary_steps += 1
+
+    return AviaryReadingAfterPhysics
 
 
 class PyFlytSwarm(HostedDroneSwarm):
@@ -79,6 +131,9 @@ class PyFlytSwarm(HostedDroneSwarm):
             PyFlyt's 240 Hz physics. ``None``: PyFlyt's own 120 Hz where the policy rate divides it (24 Hz, as
             trained), else 240 Hz (the lab loop's 48 Hz).
         drone_model: the PyFlyt ``QuadX`` model flown (``"cf2x"``, its Crazyflie 2.x, by default).
+        read_state: ``"after_physics"`` (default): the controllers read the state the physics step has just made, as
+            PyFlyt does since 0.22; ``"before_physics"``: as the pinned 0.21.0 does, one physics step late (see
+            :func:`_aviary_class`).
     """
 
     def __init__(
@@ -88,12 +143,13 @@ class PyFlytSwarm(HostedDroneSwarm):
         num_envs: int = 1,
         control_hz: float | None = None,
         drone_model: str = "cf2x",
+        read_state: ReadState = "after_physics",
     ) -> None:
+        aviary = _aviary_class(read_state)
         control_hz = resolve_control_hz(control_hz, task_config.policy_hz)
         periods = control_periods(control_hz, task_config.policy_hz)
         # The numpy engine: this class replaces the point mass's step, which the compiled engine would run.
         super().__init__(task_config, platform, num_envs, engine="numpy")
-        aviary = _aviary_class()
         self.control_periods = periods
         """PyFlyt control periods (``Aviary.step`` calls) per policy step."""
         n = task_config.num_drones
@@ -108,6 +164,8 @@ class PyFlytSwarm(HostedDroneSwarm):
         """One PyFlyt ``Aviary`` (a PyBullet world) per swarm."""
         self.control_hz = control_hz
         """Rate of PyFlyt's flight controller (Hz)."""
+        self.read_state = read_state
+        """When the controllers read the drone states: ``"after_physics"`` (PyFlyt >= 0.22) or ``"before_physics"``."""
         self._hover = self._settle_hover(round(control_hz))
 
     # ------------------------------------------------------------------ Simulator API
