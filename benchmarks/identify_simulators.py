@@ -28,7 +28,7 @@ SIMULATORS = {
     "pyflyt-0.21": ("pyflyt", {"read_state": "before_physics"}),
 }
 """Name -> (simulator, its options). ``pyflyt`` steps PyFlyt as releases since 0.22 do, ``pyflyt-0.21`` as the pinned
-0.21.0 does (its controllers read the state before the physics step: ``pyflyt_sim.simulator._aviary_class``)."""
+0.21.0 does (its controllers read the state before the physics step: ``pyflyt_sim.simulator.aviary_class``)."""
 
 
 def main() -> None:

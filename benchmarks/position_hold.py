@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from marlander_lite.crazyflie.fit import position_hold
-from marlander_lite.pyflyt_sim.simulator import _aviary_class
+from marlander_lite.pyflyt_sim.simulator import aviary_class
 from marlander_lite.task import TaskConfig
 
 SECONDS, SETTLE = 30.0, 10.0
@@ -30,7 +30,7 @@ SIMULATORS = {
 
 def pyflyt_own_position_mode(read_state: str) -> np.ndarray:
     """Position errors of a cf2x holding (0, 0, 1) in PyFlyt's own position mode, sampled at 24 Hz."""
-    aviary = _aviary_class(read_state)(
+    aviary = aviary_class(read_state)(
         start_pos=np.array([[0.0, 0.0, 1.0]]), start_orn=np.zeros((1, 3)), render=False, drone_type="quadx", seed=0
     )
     aviary.set_mode(7)

@@ -388,3 +388,29 @@ def test_ctrl_c_on_the_command_line_saves_a_checkpoint_and_resume_finishes_the_r
     assert len(lines) == 3 and lines.count(lines[0]) == 1  # one header, one row per rollout
     np.testing.assert_array_equal(read_progress(run)["time/total_timesteps"], [16_384, 32_768])
     assert load_policy(run / "policy.safetensors").contract.extra["steps"] == 32_768
+
+
+def test_the_slow_tracker_policy_records_every_stage_of_its_chain():
+    """``quick-cpu-smooth-cone2-slow-trackers`` fine-tunes ``quick-cpu-smooth-cone2`` in five stages; ``chain.json``
+    names them, each shipped stage config continues the one before, and the last stage's family covers PyFlyt's
+    identified horizontal loop (benchmarks/results/identify_simulators_2026-11-27-pyflyt-0.22.txt: tau 0.762 s, tilt
+    12.74 deg), which the default family does not (its sink, 9.618 m/s^2, lies just past the family's 9.6)."""
+    from pathlib import Path
+
+    from marlander_lite.pointmass.family import DynamicsFamily
+
+    root = Path(__file__).resolve().parents[1]
+    chain = json.loads((root / "data/runs/quick-cpu-smooth-cone2-slow-trackers/chain.json").read_text())["chain"]
+    previous = "data/runs/quick-cpu-smooth-cone2"
+    for stage in chain:
+        recorded = TrainConfig.from_dict(json.loads((root / stage["run"] / "config.json").read_text())["train"])
+        assert recorded.init_from == previous and recorded.total_steps == stage["total_steps"], stage["run"]
+        family = recorded.dynamics["family"]
+        assert all(family[name] == list(value) for name, value in stage["family_changed"].items()), stage["run"]
+        previous = stage["trained_at"]
+    family = DynamicsFamily.from_mapping(family)
+    for name, identified in (("velocity_time_constant", 0.762), ("max_tilt_deg", 12.74)):
+        low, high = getattr(family, name)
+        assert low <= identified <= high, name
+        default_low, default_high = getattr(DynamicsFamily(), name)
+        assert not default_low <= identified <= default_high, name

@@ -121,7 +121,7 @@ def position_hold(
 
     One row per policy step over ``seconds``. A velocity tracker that follows its commands holds a hover this way to
     millimetres; one that wanders shows it here, before any policy is blamed (PyFlyt 0.21.0's step order: its ``cf2x``
-    wanders along y and not along x, ``pyflyt_sim.simulator._aviary_class``). ``options`` go to the swarm class.
+    wanders along y and not along x, ``pyflyt_sim.simulator.aviary_class``). ``options`` go to the swarm class.
     """
     sim = simulator_entry(simulator).swarm_class()(task.replace(num_drones=1), PlatformConfig(), 1, **options)
     errors = np.zeros((round(seconds * task.policy_hz), 3))

@@ -26,7 +26,7 @@ class PyFlytOptions(EnvOptions):
     """The PyFlyt ``QuadX`` model: ``"cf2x"``, its Crazyflie 2.x."""
     read_state: ReadState = "after_physics"
     """When PyFlyt's controllers read the drone states: ``"after_physics"``, as PyFlyt does since 0.22, or
-    ``"before_physics"``, one physics step late, as the pinned 0.21.0 does (``pyflyt_sim.simulator._aviary_class``)."""
+    ``"before_physics"``, one physics step late, as the pinned 0.21.0 does (``pyflyt_sim.simulator.aviary_class``)."""
 
     def __post_init__(self) -> None:
         super().__post_init__()

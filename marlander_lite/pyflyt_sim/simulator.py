@@ -23,7 +23,7 @@ before the physics step, so its controllers act on a state one physics step old,
 still along y (a 0.17 m standard deviation in PyFlyt's own position mode, 0.01 m along x). PyFlyt reads the state
 after the physics step since 0.22.0, and both axes hold to 5 mm; those releases cap numpy below 2, which our pinned
 numpy is not, so ``read_state="after_physics"`` (the default) flies 0.21.0 in the later order and
-``"before_physics"`` exactly as 0.21.0 steps (see :func:`_aviary_class`).
+``"before_physics"`` exactly as 0.21.0 steps (see :func:`aviary_class`).
 
 Measured here (``tests/test_pyflyt.py``; docs/transfer.md, "PyFlyt"): a 1 m/s step rises from 10 to 90 % in about
 0.9 s (0.18 s to 1.05 s); the point mass fitted to its go-and-brake answers (:func:`marlander_lite.crazyflie.fit.
@@ -66,11 +66,11 @@ VELOCITY_MODE, MOTOR_MODE = 6, -1  # PyFlyt QuadX flight modes: (vx, vy, yaw rat
 
 ReadState = Literal["after_physics", "before_physics"]
 READ_STATES: tuple[str, ...] = ("after_physics", "before_physics")
-"""When PyFlyt's ``Aviary.step`` reads the drone states its controllers act on: see :func:`_aviary_class`."""
+"""When PyFlyt's ``Aviary.step`` reads the drone states its controllers act on: see :func:`aviary_class`."""
 
 
 @functools.cache
-def _aviary_class(read_state: ReadState = "after_physics") -> type:
+def aviary_class(read_state: ReadState = "after_physics") -> type:
     """PyFlyt's ``Aviary`` (PyFlyt is an optional extra, imported now), stepped with its states read ``read_state``.
 
     ``"before_physics"`` is ``PyFlyt==0.21.0``'s own ``Aviary.step``: in each physics step the drones read their
@@ -133,7 +133,7 @@ class PyFlytSwarm(HostedDroneSwarm):
         drone_model: the PyFlyt ``QuadX`` model flown (``"cf2x"``, its Crazyflie 2.x, by default).
         read_state: ``"after_physics"`` (default): the controllers read the state the physics step has just made, as
             PyFlyt does since 0.22; ``"before_physics"``: as the pinned 0.21.0 does, one physics step late (see
-            :func:`_aviary_class`).
+            :func:`aviary_class`).
     """
 
     def __init__(
@@ -145,7 +145,7 @@ class PyFlytSwarm(HostedDroneSwarm):
         drone_model: str = "cf2x",
         read_state: ReadState = "after_physics",
     ) -> None:
-        aviary = _aviary_class(read_state)
+        aviary = aviary_class(read_state)
         control_hz = resolve_control_hz(control_hz, task_config.policy_hz)
         periods = control_periods(control_hz, task_config.policy_hz)
         # The numpy engine: this class replaces the point mass's step, which the compiled engine would run.
