@@ -548,9 +548,34 @@ def check_08(shown: Shown) -> None:
                 assert failed == [sum(int(c[cause]) for c in cells.values()) for cause in causes], r
     landed = dict(shown.numbers(r"^point mass with a (\S+) s horizontal velocity loop: (\d+) of \d+ landed"))
     assert set(landed) == {0.2, 0.8} and landed[0.8] < landed[0.2]
+    # PyFlyt held still: in 0.21.0's step order y wanders far more than x; in the later order both hold.
+    pattern = r"^PyFlyt held still, (0\.\S+) step: RMS x (\S+) cm, y (\S+) cm$"
+    held = {order: (x, y) for order, x, y in re.findall(pattern, shown.text, re.MULTILINE)}
+    (x_021, y_021), (x_022, y_022) = ((float(v) for v in held[order]) for order in ("0.21.0", "0.22"))
+    assert y_021 > 5 * max(x_021, 0.1) and y_021 > 3 * y_022 and max(x_022, y_022) < 3.0
+    # The 0.22 table is the shipped files' cells of that column, beside the 0.21.0 cells of the same policy.
+    title = "| results | PyFlyt 0.22 step order | landing error, cm | PyFlyt 0.21.0 step order |"
+    on_022 = markdown_rows(title + shown.text.split(title, 1)[1].split("\n\n", 1)[0])
+    folders_022 = {
+        p.parent.name
+        for p in (RESULTS / "transfer").glob("*/transfer.csv")
+        if any(c["column"] == "PyFlyt Crazyflie 0.22" for c in read_csv(p))
+    }
+    assert {r["results"] for r in on_022} == folders_022 and "quick-cpu-smooth-cone2-slow-trackers" in folders_022
+    for r in on_022:
+        cells = {c["row"]: c for c in read_csv(RESULTS / "transfer" / r["results"] / "transfer.csv")
+                 if c["column"] == "PyFlyt Crazyflie 0.22"}  # fmt: skip
+        for row, rate in re.findall(r"(floor|UR10) (\S+) %", r["PyFlyt 0.22 step order"]):
+            assert close(float(rate), 100 * float(cells[row]["success_rate"]), 0.051), (r, row)
+    # The slow-tracker policy's matrix: every column, its worst cell the shipped csv's.
+    slow = read_csv(RESULTS / "transfer" / "quick-cpu-smooth-cone2-slow-trackers" / "transfer.csv")
+    [(cells, columns)] = shown.numbers(r"^slow-trackers matrix: (\d+) cells, (\d+) columns$")
+    assert cells == len(slow) == 24 and columns == 12
+    [(worst,)] = shown.numbers(r"^slow-trackers worst cell: (\S+) % \(.+\)$")
+    assert close(worst, 100 * min(float(c["success_rate"]) for c in slow), 0.051)
     # step responses (with and without RotorPy, and with PyFlyt), transfer bars, the pad's acceleration, the late
-    # descent, the swing, the steeper cone's landing errors
-    assert shown.figures == 8
+    # descent, the swing, the steeper cone's landing errors, PyFlyt held still
+    assert shown.figures == 9
 
 
 def check_09(shown: Shown) -> None:
