@@ -6,7 +6,7 @@ constant from 0.08-0.40 s, covering our PyBullet trackers (0.14-0.27 s). PyFlyt'
 with only that time constant changed (0.2-0.8 s), then with every value of PyFlyt's fit, so that one reads where
 landing breaks and whether the time constant alone explains a simulator's result (docs/transfer.md, "PyFlyt").
 
-    python benchmarks/tracker_lag_sweep.py POLICY [--episodes 100] [--row floor] [--seed 0]
+    python benchmarks/tracker_lag_sweep.py POLICY [--episodes 100] [--row floor] [--seed 0] [--taus 0.2,0.4,0.6,0.8]
 """
 
 from __future__ import annotations
@@ -33,9 +33,11 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--row", default="floor")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--taus", default="0.2,0.4,0.6,0.8", help="comma-separated horizontal time constants (s)")
     args = parser.parse_args()
+    taus = [float(tau) for tau in args.taus.split(",")]
     variants: dict[str, dict[str, Any]] = {
-        f"velocity time constant {tau} s": {"velocity_time_constant": tau} for tau in (0.2, 0.4, 0.6, 0.8)
+        f"velocity time constant {tau} s": {"velocity_time_constant": tau} for tau in taus
     }
     variants["PyFlyt's fit (all six values)"] = PYFLYT_FIT
     print(f"{args.policy}, row {args.row}, {args.episodes} episodes a cell, seed {args.seed}, Vicon sensing")
