@@ -394,7 +394,7 @@ def test_the_slow_tracker_policy_records_every_stage_of_its_chain():
     """``quick-cpu-smooth-cone2-slow-trackers`` fine-tunes ``quick-cpu-smooth-cone2`` in five stages; ``chain.json``
     names them, each shipped stage config continues the one before, and the last stage's family covers PyFlyt's
     identified horizontal loop (benchmarks/results/identify_simulators_2026-11-27-pyflyt-0.22.txt: tau 0.762 s, tilt
-    12.74 deg), which the default family does not (its sink, 9.618 m/s^2, lies just past the family's 9.6)."""
+    12.74 deg), which the default family does not (PyFlyt's sink, 9.618 m/s^2, lies just past the widened 9.6)."""
     from pathlib import Path
 
     from marlander_lite.pointmass.family import DynamicsFamily
