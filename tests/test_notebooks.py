@@ -567,12 +567,15 @@ def check_08(shown: Shown) -> None:
                  if c["column"] == "PyFlyt Crazyflie 0.22"}  # fmt: skip
         for row, rate in re.findall(r"(floor|UR10) (\S+) %", r["PyFlyt 0.22 step order"]):
             assert close(float(rate), 100 * float(cells[row]["success_rate"]), 0.051), (r, row)
-    # The slow-tracker policy's matrix: every column, its worst cell the shipped csv's.
-    slow = read_csv(RESULTS / "transfer" / "quick-cpu-smooth-cone2-slow-trackers" / "transfer.csv")
-    [(cells, columns)] = shown.numbers(r"^slow-trackers matrix: (\d+) cells, (\d+) columns$")
-    assert cells == len(slow) == 24 and columns == 12
-    [(worst,)] = shown.numbers(r"^slow-trackers worst cell: (\S+) % \(.+\)$")
-    assert close(worst, 100 * min(float(c["success_rate"]) for c in slow), 0.051)
+    # The slow-tracker policies' matrices: every column, their worst cell and largest error the shipped csv's.
+    for name in ("quick-cpu-smooth-cone2-slow-trackers", "quick-cpu-smooth-cone5-slow-trackers"):
+        slow = read_csv(RESULTS / "transfer" / name / "transfer.csv")
+        [(cells, columns)] = shown.numbers(rf"^{name} matrix: (\d+) cells, (\d+) columns$")
+        assert cells == len(slow) == 24 and columns == 12
+        [(worst,)] = shown.numbers(rf"^{name} worst cell: (\S+) % \(.+\)$")
+        assert close(worst, 100 * min(float(c["success_rate"]) for c in slow), 0.051)
+        [(widest,)] = shown.numbers(rf"^{name} largest landing error: (\S+) cm \(.+\)$")
+        assert close(widest, max(float(c["landing_error_cm"]) for c in slow), 0.0051)
     # step responses (with and without RotorPy, and with PyFlyt), transfer bars, the pad's acceleration, the late
     # descent, the swing, the steeper cone's landing errors, PyFlyt held still
     assert shown.figures == 9

@@ -390,27 +390,41 @@ def test_ctrl_c_on_the_command_line_saves_a_checkpoint_and_resume_finishes_the_r
     assert load_policy(run / "policy.safetensors").contract.extra["steps"] == 32_768
 
 
-def test_the_slow_tracker_policy_records_every_stage_of_its_chain():
-    """``quick-cpu-smooth-cone2-slow-trackers`` fine-tunes ``quick-cpu-smooth-cone2`` in five stages; ``chain.json``
-    names them, each shipped stage config continues the one before, and the last stage's family covers PyFlyt's
-    identified horizontal loop (benchmarks/results/identify_simulators_2026-11-27-pyflyt-0.22.txt: tau 0.762 s, tilt
-    12.74 deg), which the default family does not (PyFlyt's sink, 9.618 m/s^2, lies just past the widened 9.6)."""
+@pytest.mark.parametrize(
+    ("name", "starts_from"),
+    [
+        ("quick-cpu-smooth-cone2-slow-trackers", "data/runs/quick-cpu-smooth-cone2"),
+        ("quick-cpu-smooth-cone5-slow-trackers", "data/runs/quick-cpu-smooth-cone2-slow-trackers"),
+    ],
+)
+def test_the_slow_tracker_policies_record_every_stage_of_their_chains(name: str, starts_from: str):
+    """The slow-tracker policies are fine-tuned in stages: ``quick-cpu-smooth-cone2-slow-trackers`` from
+    ``quick-cpu-smooth-cone2`` in five, ``quick-cpu-smooth-cone5-slow-trackers`` from that one's shipped run in two
+    more with a steeper cone and a precision bonus. Each ``chain.json`` names its stages; each shipped stage config
+    continues the one before with the family and task changes the chain states, only the last stage's model is
+    shipped, and the last family covers PyFlyt's identified horizontal loop
+    (benchmarks/results/identify_simulators_2026-11-27-pyflyt-0.22.txt: tau 0.762 s, tilt 12.74 deg), which the
+    default family does not (PyFlyt's sink, 9.618 m/s^2, lies just past the widened 9.6)."""
     from pathlib import Path
 
     from marlander_lite.pointmass.family import DynamicsFamily
 
     root = Path(__file__).resolve().parents[1]
-    chain = json.loads((root / "data/runs/quick-cpu-smooth-cone2-slow-trackers/chain.json").read_text())["chain"]
-    previous = "data/runs/quick-cpu-smooth-cone2"
+    chain = json.loads((root / "data/runs" / name / "chain.json").read_text())["chain"]
+    previous = chain[0]["init_from"]
+    assert previous.endswith(starts_from) and (root / starts_from / "model.zip").is_file()
     for stage in chain:
         recorded = TrainConfig.from_dict(json.loads((root / stage["run"] / "config.json").read_text())["train"])
         assert recorded.init_from == previous and recorded.total_steps == stage["total_steps"], stage["run"]
         family = recorded.dynamics["family"]
-        assert all(family[name] == list(value) for name, value in stage["family_changed"].items()), stage["run"]
+        assert all(family[key] == list(value) for key, value in stage["family_changed"].items()), stage["run"]
+        assert all(recorded.task[key] == value for key, value in stage.get("task_changed", {}).items()), stage["run"]
+        assert (root / stage["run"] / "model.zip").is_file() == stage["model_shipped"], stage["run"]
         previous = stage["trained_at"]
+    assert chain[-1]["run"] == f"data/runs/{name}" and chain[-1]["model_shipped"]
     family = DynamicsFamily.from_mapping(family)
-    for name, identified in (("velocity_time_constant", 0.762), ("max_tilt_deg", 12.74)):
-        low, high = getattr(family, name)
-        assert low <= identified <= high, name
-        default_low, default_high = getattr(DynamicsFamily(), name)
-        assert not default_low <= identified <= default_high, name
+    for key, identified in (("velocity_time_constant", 0.762), ("max_tilt_deg", 12.74)):
+        low, high = getattr(family, key)
+        assert low <= identified <= high, key
+        default_low, default_high = getattr(DynamicsFamily(), key)
+        assert not default_low <= identified <= default_high, key
