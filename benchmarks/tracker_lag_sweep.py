@@ -12,6 +12,7 @@ landing breaks and whether the time constant alone explains a simulator's result
 from __future__ import annotations
 
 import argparse
+import math
 from typing import Any
 
 from marlander_lite.experiments.transfer import Column, fly_cell
@@ -27,6 +28,17 @@ PYFLYT_FIT: dict[str, Any] = {
 """PyFlyt 0.21.0's cf2x in its velocity mode, as fitted (benchmarks/results/identify_simulators_2026-11-27.txt)."""
 
 
+def parse_taus(parser: argparse.ArgumentParser, text: str) -> list[float]:
+    """The time constants of ``--taus``: positive finite seconds, or the parser stops with what was wrong."""
+    try:
+        taus = [float(tau) for tau in text.split(",")]
+    except ValueError:
+        parser.error(f"--taus must be comma-separated numbers of seconds, like 0.2,0.4,0.8; got {text!r}.")
+    if not all(math.isfinite(tau) and tau > 0 for tau in taus):
+        parser.error(f"--taus must all be finite and above 0 s (a time constant); got {text!r}.")
+    return taus
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("policy")
@@ -35,7 +47,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--taus", default="0.2,0.4,0.6,0.8", help="comma-separated horizontal time constants (s)")
     args = parser.parse_args()
-    taus = [float(tau) for tau in args.taus.split(",")]
+    taus = parse_taus(parser, args.taus)
     variants: dict[str, dict[str, Any]] = {
         f"velocity time constant {tau} s": {"velocity_time_constant": tau} for tau in taus
     }

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import argparse
 import csv
+import importlib.util
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -380,3 +383,20 @@ def test_the_matrix_flies_the_simulators_we_did_not_write(column, package):
     assert cell.successes + sum(getattr(cell, cause) for cause in causes) == 2
     assert 0.0 <= cell.tilt_limit_fraction <= 1.0
     assert np.isnan(cell.touchdown_speed) or cell.touchdown_speed > 0.0  # NaN: no drone touched down
+
+
+@pytest.mark.parametrize(
+    ("taus", "message"),
+    [("0.2,abc", "comma-separated numbers of seconds"), ("0.2,-1", "finite and above 0 s"), ("nan", "finite")],
+)
+def test_lag_sweep_refuses_malformed_time_constants(capsys, taus, message):
+    """``benchmarks/tracker_lag_sweep.py --taus`` stops with a usage error that says what it takes, not a traceback."""
+    path = Path(__file__).parents[1] / "benchmarks" / "tracker_lag_sweep.py"
+    spec = importlib.util.spec_from_file_location("tracker_lag_sweep", path)
+    sweep = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(sweep)
+    assert sweep.parse_taus(argparse.ArgumentParser(), "0.2,0.76,1.2") == [0.2, 0.76, 1.2]
+    with pytest.raises(SystemExit) as stop:
+        sweep.parse_taus(argparse.ArgumentParser(prog="tracker_lag_sweep.py"), taus)
+    assert stop.value.code == 2
+    assert message in capsys.readouterr().err
