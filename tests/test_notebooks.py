@@ -567,6 +567,14 @@ def check_08(shown: Shown) -> None:
                  if c["column"] == "PyFlyt Crazyflie 0.22"}  # fmt: skip
         for row, rate in re.findall(r"(floor|UR10) (\S+) %", r["PyFlyt 0.22 step order"]):
             assert close(float(rate), 100 * float(cells[row]["success_rate"]), 0.051), (r, row)
+    # The text on the preset's own run: about 30 % alone, 86-89 % through the filter, the rest leaving the arena.
+    bench = {kind: read_csv(RESULTS / "transfer" / f"quick-cpu-smooth-cone2-bench-pyflyt-0.22{kind}" / "transfer.csv")
+             for kind in ("", "-safety-filter")}  # fmt: skip
+    assert all(0.25 <= float(c["success_rate"]) <= 0.35 for c in bench[""])
+    filtered = bench["-safety-filter"]
+    assert all(0.86 <= float(c["success_rate"]) < 0.9 for c in filtered)
+    lost = sum(int(c["episodes"]) - int(c["successes"]) for c in filtered)
+    assert sum(int(c["out_of_arena"]) for c in filtered) >= 0.9 * lost
     # The slow-tracker policies' matrices: every column, their worst cell and largest error the shipped csv's.
     for name in ("quick-cpu-smooth-cone2-slow-trackers", "quick-cpu-smooth-cone5-slow-trackers"):
         slow = read_csv(RESULTS / "transfer" / name / "transfer.csv")
