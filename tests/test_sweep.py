@@ -225,6 +225,19 @@ def test_single_condition_interval_matches_scipy_bootstrap_of_the_mean() -> None
     assert ours.low < scores.mean() < ours.high
 
 
+def test_bootstrap_of_a_statistic_with_an_axis_is_the_one_resample_at_a_time_to_the_last_bit() -> None:
+    """``iqm`` and ``np.mean`` take an ``axis``, so all resamples go to scipy in one call; a wrapper without one is
+    called once per resample. Same resamples, same numbers, bit for bit, stratified or not."""
+    rng = np.random.default_rng(7)
+    strata = [rng.uniform(0, 1, 5), rng.normal(2, 1, 4), rng.uniform(0, 1, 7)]
+    for statistic in (seed_stats.iqm, np.mean):
+        for samples in (strata[:1], strata):
+            at_once = seed_stats.estimate(samples, statistic, seed=3)
+            one_by_one = seed_stats.estimate(samples, lambda x, statistic=statistic: statistic(x), seed=3)
+            assert (at_once.value, at_once.low, at_once.high) == (one_by_one.value, one_by_one.low, one_by_one.high)
+            assert at_once.low < at_once.value < at_once.high
+
+
 def test_stratified_bootstrap_never_mixes_conditions() -> None:
     """Resampling within each condition keeps every pooled resample half 'easy', half 'hard'."""
     easy, hard = np.array([1.0, 1.0, 1.0]), np.array([0.0, 0.0, 0.0])
