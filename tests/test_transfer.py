@@ -21,6 +21,7 @@ from marlander_lite.pointmass.family import NOMINAL, DynamicsFamily
 from marlander_lite.pointmass.simulator import GRAVITY, PointMassParams, PointMassSwarm
 from marlander_lite.policy_file import load_policy
 from marlander_lite.swarm.safety_filter import SafetyFilterConfig
+from marlander_lite.swarm.tracker_lag import TIME_CONSTANT_RANGE
 from marlander_lite.task import TaskConfig
 
 POLICY = "data/policies/quick-cpu.safetensors"
@@ -280,6 +281,26 @@ def test_transfer_command_records_the_safety_filter_settings(tmp_path, capsys) -
     assert bare["config"]["safety_filter"] is None and "safety_filter_resolved" not in bare
 
 
+def test_a_cell_reports_the_tracker_lag_its_filter_identified(tmp_path) -> None:
+    """With ``identified_lag_share`` the filter identifies each episode's tracker, and the cell reports the median: a
+    point mass whose horizontal loop is 0.8 s reads slower than the nominal 0.142 s one, and both within the bounds
+    the identification keeps. Written to the matrix's files and its flight table; without the setting, none."""
+    settings = {"latency_compensation": 0.12, "identified_lag_share": 0.5}
+    slow = transfer.Column("slow point mass", "pointmass", {"dynamics": {"velocity_time_constant": 0.8}})
+    cells = [transfer.fly_cell(POLICY, column, "floor", 2, 0, "vicon", settings) for column in ("point mass", slow)]
+    nominal, sluggish = (cell.identified_lag_s for cell in cells)
+    assert TIME_CONSTANT_RANGE[0] < nominal < sluggish - 0.2 < TIME_CONSTANT_RANGE[1]
+    assert transfer.fly_cell(POLICY, "point mass", "floor", 1, 0, "vicon", {}).identified_lag_s is None
+    config = transfer.TransferConfig(policy=POLICY, episodes=2, safety_filter=settings)
+    transfer.write_results(config, cells, tmp_path, wall_s=1.0)
+    assert [c.identified_lag_s for c in transfer.read_results(tmp_path / "transfer.json")] == [nominal, sluggish]
+    with (tmp_path / "transfer.csv").open() as f:
+        assert [float(r["identified_lag_s"]) for r in csv.DictReader(f)] == pytest.approx([nominal, sluggish], rel=1e-5)
+    table = (tmp_path / "transfer.md").read_text()
+    assert "| identified lag s |" in table and f"| {sluggish:.2f} |" in table
+    assert "identified lag" not in transfer.format_flight_table(transfer.read_results(tmp_path / "transfer.json")[:0])
+
+
 def test_a_matrix_written_before_failures_were_counted_still_reads(tmp_path) -> None:
     old = json.loads(open("data/results/transfer/quick-cpu/transfer.json").read())
     for cell in old["cells"]:
@@ -289,6 +310,7 @@ def test_a_matrix_written_before_failures_were_counted_still_reads(tmp_path) -> 
     cells = transfer.read_results(tmp_path / "transfer.json")
     assert cells[0].timeouts is None
     assert "| - / - / - / - / - |" in transfer.format_flight_table(cells)
+    assert cells[0].identified_lag_s is None and "identified lag" not in transfer.format_flight_table(cells)
 
 
 @pytest.mark.parametrize(

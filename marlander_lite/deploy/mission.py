@@ -54,6 +54,10 @@ from marlander_lite.deploy.runner import InvalidAction, Policy, PolicyRunner, de
 from marlander_lite.deploy.safety import Event, EventKind, SafetyMonitor
 from marlander_lite.rotations import tilt_deg
 
+LATENCY_LOG_STEP = 0.05
+"""s: a ``tracker_lag`` event is logged each time the identified latency compensation has moved this far from the one
+last logged (the filter's ``identified_lag_share``): the log shows what the flight identified, not every step."""
+
 
 class Mission(LandingControl):
     """One flight of the swarm; see the module docstring.
@@ -108,6 +112,8 @@ class Mission(LandingControl):
         self.landings = Landings(pad_radius=np.array([p.radius for p in lab.drone_pads()]))
         self.requests = Requests()
         self.book = TickBook()
+        self.logged_latency = self.runner.latency_compensation
+        """The filter's latency compensation (s) the last ``tracker_lag`` event reported (the setting at first)."""
 
     # ------------------------------------------------------------------ read-only views
     @property
@@ -383,6 +389,13 @@ class Mission(LandingControl):
             return  # the safety rules hover; the policy waits for fresh data
         out = self.output
         out.obs = self.runner.observe(est)
+        latency = self.runner.latency_compensation
+        if abs(latency - self.logged_latency) >= LATENCY_LOG_STEP:
+            assert self.runner.tracker_lag is not None  # the compensation changes only when it is identified
+            lag = float(self.runner.tracker_lag.time_constant()[0])
+            message = f"velocity tracker lag identified: {lag:.2f} s; latency compensation {latency:.2f} s"
+            self.event("tracker_lag", message)
+            self.logged_latency = latency
         try:
             out.action, velocity = self.runner.act(out.obs, est.goal)
             out.unfiltered = velocity

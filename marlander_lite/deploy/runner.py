@@ -26,6 +26,9 @@ pushed down, and for each to descend no faster than it can brake to ``v_td`` and
 beside its pad; the result is speed-clamped again. With the filter's ``latency_compensation`` ``L`` the policy and
 the filter's guards read the estimate predicted ``L`` ahead (:meth:`PolicyRunner.ahead`), where each drone and pad
 will be when the command acts; the separation rules and the mission's safety rules keep the estimate as measured.
+With the filter's ``identified_lag_share`` ``s`` the runner identifies the drones' velocity tracker in flight
+(:class:`~marlander_lite.swarm.tracker_lag.TrackerLag`, from the setpoints sent and the velocities that followed) and
+``L`` becomes ``s`` times its time constant.
 """
 
 from __future__ import annotations
@@ -41,6 +44,7 @@ from marlander_lite.observation_history import ObservationHistory
 from marlander_lite.swarm.observation import shared_observations
 from marlander_lite.swarm.pad_acceleration import PadAcceleration
 from marlander_lite.swarm.safety_filter import SafetyFilterConfig, filter_commands
+from marlander_lite.swarm.tracker_lag import TrackerLag
 from marlander_lite.task import TaskConfig
 
 
@@ -105,6 +109,12 @@ class PolicyRunner:
         """The latest frames a policy with ``TaskConfig.observation_history`` reads: one frame per policy step (each
         new estimate time), the first frame in every slot at the first step, as after a reset in the simulators."""
         self._history_at: float | None = None
+        self._identified_latency: float | None = None
+        share = 0.0 if safety_filter is None else safety_filter.identified_lag_share
+        self.tracker_lag = None if not share else TrackerLag(self.latency_compensation / share, task_config.dt)
+        """The velocity tracker's time constant, identified from the setpoints sent (:attr:`previous_command`) and the
+        velocities that followed, once per policy step; None unless the filter's ``identified_lag_share`` is set."""
+        self._lag_at: float | None = None
 
     @property
     def shared(self) -> bool:
@@ -113,8 +123,30 @@ class PolicyRunner:
 
     @property
     def latency_compensation(self) -> float:
-        """``L`` (s) of the filter's latency compensation; 0 without a filter."""
-        return 0.0 if self.safety_filter is None else self.safety_filter.latency_compensation
+        """``L`` (s) of the filter's latency compensation; 0 without a filter. With ``identified_lag_share`` ``s``,
+        ``min(s T, 0.5)`` for the time constant ``T`` identified so far (:meth:`identify_lag`)."""
+        if self.safety_filter is None:
+            return 0.0
+        if self._identified_latency is not None:
+            return self._identified_latency
+        return self.safety_filter.latency_compensation
+
+    def identify_lag(self, est: SwarmEstimate) -> None:
+        """Update the identified tracker time constant from the estimate of a new policy step (once per estimate
+        time ``est.t``): the step from the last one, under the setpoints sent since (:attr:`previous_command`), is a
+        sample when it lasted one policy period (within half of one); otherwise none is taken."""
+        if self.tracker_lag is None or self._lag_at == est.t:
+            return
+        assert self.safety_filter is not None
+        lag = self.tracker_lag
+        if self._lag_at is not None:
+            lag.commanded(self.previous_command[None])
+            if abs(est.t - self._lag_at - self.task.dt) > 0.5 * self.task.dt:
+                lag.skip()
+        self._lag_at = est.t
+        rel_goal, rel_vel = (est.pos - est.goal)[None], (est.vel - est.pad_vel)[None]
+        time_constant = float(lag.observe(rel_goal, rel_vel, est.pad_vel[None])[0])
+        self._identified_latency = min(self.safety_filter.identified_lag_share * time_constant, 0.5)
 
     def ahead(self, est: SwarmEstimate) -> SwarmEstimate:
         """The estimate predicted :attr:`latency_compensation` ahead at constant velocity: every drone at
@@ -138,6 +170,7 @@ class PolicyRunner:
         :attr:`latency_compensation` ahead; with ``TaskConfig.observation_history`` ``H`` such frames, newest first
         (``(N, 22 H)``), the history advanced once per estimate time ``est.t``."""
         acceleration = self.pad_acceleration_estimate(est)
+        self.identify_lag(est)
         t, est = est.t, self.ahead(est)
         pad_vel = est.pad_vel if self.task.observe_platform_velocity else None
         command = self.previous_command if self.task.observe_previous_command else None

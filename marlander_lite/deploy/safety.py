@@ -196,6 +196,7 @@ EventKind = Literal[
     "invalid_action",
     "recovered",
     "safety_filter",
+    "tracker_lag",
     "link_lost",
     "touchdown",
     "handover",

@@ -313,6 +313,11 @@ class SafetyFilterSection:
     at their tracked velocities, where they will be when the command acts; 0: off. On moving pads 0.12, with the other
     moving-pad settings: with it, 60 ms of command latency cost the `moving` policy at most 2.5 points on moving pads
     in the simulators (docs/transfer.md, "Latency compensation")."""
+    identified_lag_share: Annotated[Real, Field(ge=0, le=2)] = _FILTER_DEFAULTS.identified_lag_share
+    """Identified latency compensation: the runner identifies the drones' velocity tracker in flight, from the setpoints
+    sent and the velocities that followed, and sets the latency compensation to this share of its time constant (at
+    most 0.5 s), starting from ``latency_compensation``; 0: off, the compensation stays ``latency_compensation``. For a
+    tracker whose lag you have not measured (docs/transfer.md, "A compensation the flight identifies")."""
 
     def __post_init__(self) -> None:
         self.filter_config()  # the filter's own checks, as a ConfigError naming this section

@@ -55,6 +55,7 @@ from marlander_lite.policy_file import MLPPolicy, load_policy
 from marlander_lite.rotations import tilt_deg
 from marlander_lite.simulators import simulator_entry
 from marlander_lite.swarm.safety_filter import SafetyFilterConfig, with_safety_filter
+from marlander_lite.swarm.tracker_lag import TrackerLag
 
 NEAR_PAD = 0.5
 """Distance to the goal (m) within which commanded speeds are measured, and horizontal distance at which the
@@ -163,6 +164,9 @@ class CellResult:
     """Episodes ended by a drone leaving the arena."""
     timeouts: int | None = None
     """Episodes that reached the time limit without every drone landed."""
+    identified_lag_s: float | None = None
+    """Median over the episodes of the velocity-tracker time constant the safety filter had identified by each
+    episode's end (s, ``identified_lag_share``; the compensation flown was that times the share); None: none was."""
 
 
 def find_column(name: str) -> Column:
@@ -217,7 +221,9 @@ def fly_cell(
     row = find_row(row_name)
     world = build_episodes(policy, column, row, sensing)
     cfg = world.task
-    act = cell_actor(policy, world, safety_filter)
+    lag = tracker_lag(safety_filter, world.task)
+    act = cell_actor(policy, world, safety_filter, lag)
+    identified: list[float] = []
     successes, collisions = 0, 0
     errors: list[float] = []
     times: list[float] = []
@@ -254,6 +260,8 @@ def fly_cell(
                 if outcome.done[0]:
                     break
                 obs = outcome.obs
+            if lag is not None:
+                identified.append(float(lag.time_constant()[0]))
             collisions += bool(outcome.min_separation[0] < cfg.collision_distance)
             cause = failure_cause(outcome, cfg)
             if cause is not None:
@@ -287,14 +295,27 @@ def fly_cell(
         approach_height=mean(heights),
         wall_s=time.perf_counter() - started,
         **failures,
+        identified_lag_s=float(np.median(identified)) if identified else None,
     )
 
 
+def tracker_lag(safety_filter: dict[str, float] | None, cfg: task.TaskConfig) -> TrackerLag | None:
+    """The :class:`TrackerLag` a cell's safety filter identifies its tracker with, so that the cell can report what it
+    identified; None without a filter or with ``identified_lag_share`` 0."""
+    config = None if safety_filter is None else SafetyFilterConfig.from_dict(safety_filter)
+    if config is None or not config.identified_lag_share:
+        return None
+    return TrackerLag(config.latency_compensation / config.identified_lag_share, cfg.dt)
+
+
 def cell_actor(
-    policy: MLPPolicy, world: LandingEpisodes, safety_filter: dict[str, float] | None
+    policy: MLPPolicy,
+    world: LandingEpisodes,
+    safety_filter: dict[str, float] | None,
+    lag: TrackerLag | None = None,
 ) -> Callable[[np.ndarray], np.ndarray]:
     """Observations ``(1, N, obs_per_drone)`` -> the actions flown ``(1, 3 N)``: the policy's, through the safety
-    filter with ``safety_filter``'s settings unless it is None."""
+    filter with ``safety_filter``'s settings unless it is None (identifying the tracker with ``lag``, if given)."""
 
     def act(obs: np.ndarray) -> np.ndarray:
         return policy.act(policy_input(obs))
@@ -313,6 +334,7 @@ def cell_actor(
         policy_dt=task_config.dt,
         observes_pad_velocity=task_config.observe_platform_velocity,
         pads_move=world.sim.platform.is_moving,
+        tracker_lag=lag,
     )
 
 
@@ -409,13 +431,18 @@ def format_flight_table(results: list[CellResult]) -> str:
         "collisions % | failed: collision / crash too fast / crash off pad / out / timeout |",
         "|---|---|---|---|---|---|---|---|",
     ]
+    identified = any(r.identified_lag_s is not None for r in results)
+    if identified:  # a column only for matrices flown with the identified latency compensation
+        lines = [lines[0] + " identified lag s |", lines[1] + "---|"]
     for r in results:
         counts = [getattr(r, name) for name in FAILURES]
         failed = " / ".join("-" if n is None else str(n) for n in counts)
-        lines.append(
+        line = (
             f"| {r.row} | {r.column} | {r.touchdown_speed:.2f} | {r.command_near_pad_p95:.2f} | "
             f"{100 * r.tilt_limit_fraction:.1f} | {r.approach_height:.2f} | {100 * r.collision_rate:.1f} | {failed} |"
         )
+        lag = "-" if r.identified_lag_s is None else f"{r.identified_lag_s:.2f}"
+        lines.append(line + f" {lag} |" if identified else line)
     return "\n".join(lines)
 
 

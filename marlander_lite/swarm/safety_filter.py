@@ -52,7 +52,10 @@ old acts ``L`` seconds late. With ``L`` set, the policy and the guards (descent,
 observation predicted ``L`` ahead at its present velocity (eq. 2's ``p + v L``, :func:`predict_observations`), as a
 Smith predictor acts on the output predicted past a known delay [Smith1957] (docs/references.md), here from the
 measured velocity, not a model. The separation and wake rules keep the measured positions: they predict ``tau``
-ahead on their own, and predicting from the predicted positions too added collisions (docs/transfer.md).
+ahead on their own, and predicting from the predicted positions too added collisions (docs/transfer.md). With
+``identified_lag_share`` ``s`` each flight identifies its velocity tracker's time constant ``T`` from the commands it
+sent and the velocities that followed (:mod:`marlander_lite.swarm.tracker_lag`) and ``L`` becomes ``min(s T, 0.5 s)``,
+so that one setting fits fast and slow trackers.
 
 **Velocity-step limit** (``low_velocity_step``, off by default). A velocity tracker tilts a drone in proportion to the
 difference between its command and its velocity. Below ``h_max`` above its goal, a drone's horizontal command is
@@ -87,6 +90,7 @@ import numpy as np
 
 from marlander_lite.platforms import PlateGeometry
 from marlander_lite.swarm.pad_acceleration import PadAcceleration
+from marlander_lite.swarm.tracker_lag import TIME_CONSTANT_RANGE, TrackerLag
 from marlander_lite.task import EQ2_POSITION, EQ2_VELOCITY, PLATFORM_VELOCITY
 
 _EPS = 1e-9
@@ -193,6 +197,12 @@ class SafetyFilterConfig:
     ``L`` old acts ``L`` late, and a drone it tells to brake over its pad has already come ``v L`` lower. 0.12 s is in
     the moving-pad settings: it covers the transfer matrix's 60 ms of command latency, Vicon's 20 ms and part of the
     tracker's response (docs/transfer.md). At most 0.5 s."""
+    identified_lag_share: float = 0.0
+    """``s`` of the identified latency compensation, 0 = off (``L`` is ``latency_compensation`` throughout). With
+    ``s`` > 0 every flight identifies its velocity tracker's time constant ``T`` from the commands sent and the
+    velocities that followed (:class:`~marlander_lite.swarm.tracker_lag.TrackerLag`; before the first samples ``T`` is
+    ``latency_compensation / s``) and flies with ``L = min(s T, 0.5 s)``: the best fixed ``L`` was about half a slow
+    tracker's time constant, and one that large cost a fast tracker landing accuracy (docs/transfer.md). At most 2."""
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -219,6 +229,16 @@ class SafetyFilterConfig:
                 "SafetyFilterConfig.latency_compensation must be within [0, 0.5] s, got "
                 f"{self.latency_compensation!r}: a loop half a second late cannot land a drone, whatever it predicts."
             )
+        if self.identified_lag_share > 0:
+            low, high = TIME_CONSTANT_RANGE
+            prior = self.latency_compensation / self.identified_lag_share
+            if self.identified_lag_share > 2 or not low <= prior <= high:
+                raise ValueError(
+                    f"SafetyFilterConfig.identified_lag_share must be within [0, 2] and latency_compensation / "
+                    f"identified_lag_share (the time constant assumed before any is identified) within [{low}, {high}] "
+                    f"s; got identified_lag_share={self.identified_lag_share!r}, latency_compensation="
+                    f"{self.latency_compensation!r}. Try identified_lag_share=0.5 with latency_compensation=0.12."
+                )
         if not isinstance(self.iterations, int) or self.iterations < 1:
             raise ValueError(f"SafetyFilterConfig.iterations must be an integer >= 1, got {self.iterations!r}.")
 
@@ -250,13 +270,14 @@ def parse_settings(text: str) -> dict[str, float]:
     return settings
 
 
-def predict_observations(obs: np.ndarray, seconds: float) -> np.ndarray:
+def predict_observations(obs: np.ndarray, seconds: float | np.ndarray) -> np.ndarray:
     """Eq. 2 observations ``(..., N, >= 13)`` predicted ``seconds`` ahead at constant velocity: ``p + v seconds``.
 
     ``p`` is the drone's position minus its goal and ``v`` its velocity relative to the pad, so ``dp/dt = v``
-    whether the pad moves or not; attitude, velocities and the extras are kept. With ``seconds`` > 0 a new array;
-    with 0 (compensation off, the default) ``obs`` itself as floats, so that every filtered step does not copy it."""
-    if not seconds:
+    whether the pad moves or not; attitude, velocities and the extras are kept. ``seconds`` is a number or an array
+    that broadcasts against ``(..., N, 1)`` (one per env: ``(E, 1, 1)``). With ``seconds`` > 0 a new array; with 0
+    (compensation off, the default) ``obs`` itself as floats, so that every filtered step does not copy it."""
+    if np.ndim(seconds) == 0 and not seconds:
         return np.asarray(obs, dtype=float)
     predicted = np.array(obs, dtype=float)
     predicted[..., EQ2_POSITION] += seconds * predicted[..., EQ2_VELOCITY]
@@ -471,6 +492,7 @@ def with_safety_filter(
     policy_dt: float | None = None,
     observes_pad_velocity: bool = False,
     pads_move: bool = False,
+    tracker_lag: TrackerLag | None = None,
 ) -> BatchAct:
     """Wrap a batch actor (centralised observations ``(E, 13 N)`` -> actions ``(E, 3 N)`` in [-1, 1]) with
     :func:`filter_commands`: actions are read as commands of ``max_speed`` m/s per unit (eq. 3).
@@ -483,6 +505,9 @@ def with_safety_filter(
     ``TaskConfig.observe_platform_velocity``) and the time between two calls, ``policy_dt`` (s).
     With ``config.latency_compensation`` > 0 the policy reads the observations predicted that far ahead
     (:func:`predict_observations`), and so do the filter's guards (:func:`filter_actions`).
+    With ``config.identified_lag_share`` > 0 the wrapper identifies the tracker with ``tracker_lag`` (pass one to read
+    what it identified; None: a new :class:`TrackerLag` starting from ``latency_compensation / identified_lag_share``)
+    and sets ``L`` per env from it.
     With ``config.low_velocity_step`` > 0 the velocity-step limit compares commands with each drone's velocity in the
     world frame: eq. 2's ``v`` plus the pad velocity in the observations (``observes_pad_velocity``), or ``v`` itself
     on pads at rest. On pads that move (``pads_move``) it therefore needs ``observes_pad_velocity``.
@@ -494,6 +519,15 @@ def with_safety_filter(
             "with observe_platform_velocity, as the moving preset is): without it the limit would hold the drone to "
             "its velocity relative to the pad. Fly it on static pads, or set low_velocity_step=0."
         )
+    lag = None
+    if config.identified_lag_share > 0:
+        if not policy_dt or (pads_move and not observes_pad_velocity):
+            raise ValueError(
+                "identified_lag_share > 0 needs the policy period (policy_dt) and, on moving pads, each pad's velocity "
+                "in the observations (a policy trained with observe_platform_velocity): the tracker is identified "
+                "from world-frame velocities. Or set identified_lag_share=0."
+            )
+        lag = tracker_lag or TrackerLag(config.latency_compensation / config.identified_lag_share, policy_dt)
     lead = None
     if config.pad_lead > 0:
         if not (observes_pad_velocity and policy_dt):
@@ -510,11 +544,17 @@ def with_safety_filter(
     def filtered(obs: np.ndarray) -> np.ndarray:
         obs = np.asarray(obs, dtype=float)
         per_drone = obs.reshape(len(obs), num_drones, -1)
-        ahead = predict_observations(per_drone, config.latency_compensation).reshape(obs.shape)
+        pad_vel = per_drone[..., PLATFORM_VELOCITY] if observes_pad_velocity else None
+        latency: float | np.ndarray = config.latency_compensation
+        if lag is not None:
+            lags = lag.observe(per_drone[..., EQ2_POSITION], per_drone[..., EQ2_VELOCITY], pad_vel)
+            latency = np.minimum(config.identified_lag_share * lags, 0.5)[:, None, None]  # (E, 1, 1) s
+        ahead = predict_observations(per_drone, latency).reshape(obs.shape)
         command = np.asarray(act(ahead), dtype=float).reshape(len(obs), num_drones, 3)
         accel = None if lead is None else lead.update(per_drone[..., PLATFORM_VELOCITY], next(calls) * policy_dt)
-        pad_vel = per_drone[..., PLATFORM_VELOCITY] if observes_pad_velocity else None
-        actions, _ = filter_actions(per_drone, command, offsets, max_speed, config, accel, pad_vel)
+        actions, _ = filter_actions(per_drone, command, offsets, max_speed, config, accel, pad_vel, latency)
+        if lag is not None:
+            lag.commanded(actions * max_speed)
         return actions.reshape(len(obs), 3 * num_drones)
 
     return filtered
@@ -528,6 +568,7 @@ def filter_actions(
     config: SafetyFilterConfig,
     pad_acceleration: np.ndarray | None = None,
     pad_velocity: np.ndarray | None = None,
+    latency: float | np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`filter_commands` on eq. 3 actions, with positions and velocities read from eq. 2 observations.
 
@@ -542,6 +583,8 @@ def filter_actions(
             None: no lead.
         pad_velocity: each drone's pad's velocity ``(..., N, 3)`` m/s (from observations that hold it), for the
             velocity-step limit (``config.low_velocity_step``); None: the pads are taken to be at rest.
+        latency: the latency compensation ``L`` (s) the guards predict ``p`` by: a number, or ``(..., 1, 1)`` (one
+            per env, as ``config.identified_lag_share`` identifies it); None: ``config.latency_compensation``.
 
     Returns:
         ``(filtered, correction)``: actions ``(..., N, 3)`` in [-1, 1], and how far the filter moved each drone's
@@ -553,13 +596,14 @@ def filter_actions(
     # Only the differences of velocities keep drones apart, so the other rules read the same either way; without the
     # limit the velocities stay as observed, so that filtered flights without it are what they were before it.
     world_frame = pad_velocity is not None and config.low_velocity_step > 0
+    lead = config.latency_compensation if latency is None else latency
     u, _ = filter_commands(
         rel_goal + pad_offsets,
         vel + pad_velocity if world_frame else vel,
         command,
         config,
         settled=settled_drones(rel_goal, vel, config),
-        rel_goal=rel_goal + config.latency_compensation * vel,  # where the guards act: p + v L
+        rel_goal=rel_goal + lead * vel,  # where the guards act: p + v L
         max_speed=max_speed,
         pad_acceleration=pad_acceleration,
         pad_velocity=pad_velocity if world_frame else None,
