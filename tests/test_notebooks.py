@@ -590,6 +590,22 @@ def check_08(shown: Shown) -> None:
         assert close(worst, 100 * min(float(c["success_rate"]) for c in slow), 0.051)
         [(widest,)] = shown.numbers(rf"^{name} largest landing error: (\S+) cm \(.+\)$")
         assert close(widest, max(float(c["landing_error_cm"]) for c in slow), 0.0051)
+    # Section 4l: the identified compensation. The live cells: the lag identified grows with the point mass's loop and
+    # the compensation is half of it; the shipped matrix: every column, its worst cell and largest error the csv's.
+    pattern = r"^velocity time constant (\S+) s: identified (\S+) s, compensation (\S+) s; (\S+) % of (\d+) at"
+    live = {tau: (lag, compensation) for tau, lag, compensation, _, _ in shown.numbers(pattern)}
+    assert set(live) == {0.2, 0.8} and live[0.8][0] > live[0.2][0] + 0.2
+    assert all(close(compensation, min(0.5 * lag, 0.5), 0.0051) for lag, compensation in live.values())
+    identified = read_csv(
+        RESULTS / "transfer" / "quick-cpu-smooth-cone2-bench-safety-filter-identified-lag" / "transfer.csv"
+    )
+    assert len(identified) == 24 and len({c["column"] for c in identified}) == 12
+    [(worst,)] = shown.numbers(r"^identified compensation worst cell: (\S+) % \(.+\)$")
+    assert close(worst, 100 * min(float(c["success_rate"]) for c in identified), 0.051) and worst >= 90.0
+    [(widest,)] = shown.numbers(r"^identified compensation largest landing error: (\S+) cm \(.+\)$")
+    assert close(widest, max(float(c["landing_error_cm"]) for c in identified), 0.0051) and widest <= 2.26
+    lags = {(c["row"], c["column"]): float(c["identified_lag_s"]) for c in identified}
+    assert lags[("floor", "PyFlyt Crazyflie 0.22")] > 2 * lags[("floor", "PyBullet firmware")]  # the text's claim
     # step responses (with and without RotorPy, and with PyFlyt), transfer bars, the pad's acceleration, the late
     # descent, the swing, the steeper cone's landing errors, PyFlyt held still
     assert shown.figures == 9
