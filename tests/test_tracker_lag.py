@@ -246,3 +246,19 @@ def test_a_rehearsal_logs_what_it_identified_and_lands() -> None:
     assert all(latency == pytest.approx(min(0.5 * lag, 0.5), abs=0.008) for lag, latency in values)  # 2 decimals
     steps = np.diff([0.12] + [latency for _, latency in values])  # from the setting, then event to event
     assert (np.abs(steps) >= 0.05 - 0.011).all(), values
+
+
+def test_a_drone_motion_capture_lost_gives_no_sample() -> None:
+    """A NaN position or velocity (a marker lost) is no sample, and the estimate stays finite: the other drone of the
+    swarm still identifies the tracker."""
+    lag, plant = TrackerLag(prior=0.24, dt=DT), FirstOrderTracker([0.6])
+    rng = np.random.default_rng(3)
+    for k in range(240):
+        seen_p, seen_v = plant.p.copy(), plant.v.copy()
+        if k % 3 == 0:
+            seen_p[0, 1], seen_v[0, 1] = np.nan, np.nan
+        identified = lag.observe(seen_p, seen_v)
+        assert np.isfinite(identified).all()
+        lag.commanded(command := random_commands(rng, plant.p.shape))
+        plant.step(command)
+    assert identified[0] == pytest.approx(0.6, rel=0.03)

@@ -45,7 +45,7 @@ class TrackerLag:
 
     Args:
         prior: the time constant ``T0`` (s) assumed before any sample, within :data:`TIME_CONSTANT_RANGE`.
-        dt: the policy period (s), the time between two :meth:`update` calls.
+        dt: the policy period (s), the time between two :meth:`observe` calls.
         prior_weight: ``w0`` ((m/s)^2), how many squared m/s of command-velocity difference the prior is worth.
     """
 
@@ -79,7 +79,7 @@ class TrackerLag:
         self._last = self._command = None
 
     def time_constant(self) -> np.ndarray:
-        """The identified time constant of every env ``(E,)`` s (the prior before the first :meth:`update`)."""
+        """The identified time constant of every env ``(E,)`` s (the prior before the first :meth:`observe`)."""
         if self._moment is None or self._power is None:
             return np.array([self.prior])
         low, high = TIME_CONSTANT_RANGE
@@ -116,11 +116,14 @@ class TrackerLag:
             explained = last_goal + 0.5 * (last_rel_velocity + rel_velocity) * self.dt
             jumped = (np.linalg.norm(rel_goal - explained, axis=-1) > RESET_JUMP).any(axis=-1)
             self.reset(jumped)
-            airborne = (last_goal[..., 2] > MIN_HEIGHT) & (rel_goal[..., 2] > MIN_HEIGHT) & ~jumped[:, None]
             before = (last_velocity - self._command)[..., :2]
             after = (velocity - self._command)[..., :2]
-            self._moment += np.einsum("enk,enk,en->e", after, before, airborne)
-            self._power += np.einsum("enk,enk,en->e", before, before, airborne)
+            airborne = (last_goal[..., 2] > MIN_HEIGHT) & (rel_goal[..., 2] > MIN_HEIGHT) & ~jumped[:, None]
+            # a drone motion capture lost (NaN) gives no sample, and leaves no NaN in the sums
+            usable = airborne & np.isfinite(before).all(axis=-1) & np.isfinite(after).all(axis=-1)
+            before, after = np.where(usable[..., None], before, 0.0), np.where(usable[..., None], after, 0.0)
+            self._moment += np.einsum("enk,enk,en->e", after, before, usable)
+            self._power += np.einsum("enk,enk,en->e", before, before, usable)
         self._last, self._command = (rel_goal, rel_velocity, velocity), None
         return self.time_constant()
 
