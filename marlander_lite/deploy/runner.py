@@ -44,7 +44,6 @@ from marlander_lite.observation_history import ObservationHistory
 from marlander_lite.swarm.observation import shared_observations
 from marlander_lite.swarm.pad_acceleration import PadAcceleration
 from marlander_lite.swarm.safety_filter import SafetyFilterConfig, filter_commands
-from marlander_lite.swarm.tracker_lag import TrackerLag
 from marlander_lite.task import TaskConfig
 
 
@@ -110,8 +109,7 @@ class PolicyRunner:
         new estimate time), the first frame in every slot at the first step, as after a reset in the simulators."""
         self._history_at: float | None = None
         self._identified_latency: float | None = None
-        share = 0.0 if safety_filter is None else safety_filter.identified_lag_share
-        self.tracker_lag = None if not share else TrackerLag(self.latency_compensation / share, task_config.dt)
+        self.tracker_lag = None if safety_filter is None else safety_filter.tracker_lag(task_config.dt)
         """The velocity tracker's time constant, identified from the setpoints sent (:attr:`previous_command`) and the
         velocities that followed, once per policy step; None unless the filter's ``identified_lag_share`` is set."""
         self._lag_at: float | None = None

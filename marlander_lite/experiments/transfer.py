@@ -302,10 +302,7 @@ def fly_cell(
 def tracker_lag(safety_filter: dict[str, float] | None, cfg: task.TaskConfig) -> TrackerLag | None:
     """The :class:`TrackerLag` a cell's safety filter identifies its tracker with, so that the cell can report what it
     identified; None without a filter or with ``identified_lag_share`` 0."""
-    config = None if safety_filter is None else SafetyFilterConfig.from_dict(safety_filter)
-    if config is None or not config.identified_lag_share:
-        return None
-    return TrackerLag(config.latency_compensation / config.identified_lag_share, cfg.dt)
+    return None if safety_filter is None else SafetyFilterConfig.from_dict(safety_filter).tracker_lag(cfg.dt)
 
 
 def cell_actor(

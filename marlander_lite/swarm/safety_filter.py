@@ -242,6 +242,13 @@ class SafetyFilterConfig:
         if not isinstance(self.iterations, int) or self.iterations < 1:
             raise ValueError(f"SafetyFilterConfig.iterations must be an integer >= 1, got {self.iterations!r}.")
 
+    def tracker_lag(self, policy_dt: float) -> TrackerLag | None:
+        """A new :class:`TrackerLag` for ``identified_lag_share``, starting from ``latency_compensation /
+        identified_lag_share``, for a loop acting every ``policy_dt`` s; None when the share is 0 (off)."""
+        if not self.identified_lag_share:
+            return None
+        return TrackerLag(self.latency_compensation / self.identified_lag_share, policy_dt)
+
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
@@ -527,7 +534,7 @@ def with_safety_filter(
                 "in the observations (a policy trained with observe_platform_velocity): the tracker is identified "
                 "from world-frame velocities. Or set identified_lag_share=0."
             )
-        lag = tracker_lag or TrackerLag(config.latency_compensation / config.identified_lag_share, policy_dt)
+        lag = tracker_lag or config.tracker_lag(policy_dt)
     lead = None
     if config.pad_lead > 0:
         if not (observes_pad_velocity and policy_dt):
