@@ -315,6 +315,8 @@ def progress_rows(run) -> list[str]:
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
 def test_interrupted_run_saves_a_checkpoint_and_resumes_to_the_uninterrupted_result(tmp_path, signum):
     config = tiny(8192, seed=5)  # 4 rollouts of 64 envs x 32 steps
+    # What the process had before the run (a background job started by a shell ignores SIGINT).
+    handlers_before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
     with pytest.raises(TrainingInterrupted, match="--resume") as stopped:
         train(config, tmp_path / "run", callbacks=(SignalAt(3000, signum),))
     assert stopped.value.steps == 4096  # the next rollout boundary after the signal
@@ -322,7 +324,7 @@ def test_interrupted_run_saves_a_checkpoint_and_resumes_to_the_uninterrupted_res
     for name in ("model.zip", "vecnormalize.pkl", "state.pkl"):
         assert (checkpoint / name).is_file(), name
     assert not (tmp_path / "run" / "policy.safetensors").exists()
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # handlers put back
+    assert (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) == handlers_before  # put back
     rows_before = progress_rows(tmp_path / "run")
     assert len(rows_before) == 1 + 2  # header + 2 rollouts
 
