@@ -132,6 +132,15 @@ def _task_kernels() -> Any:
     return task_kernels
 
 
+def fortran_state(s: SwarmState) -> SwarmState:
+    """``s`` with every array in the point-mass layout (environment index fastest; ``contact`` as int8): the point
+    mass's own arrays, not copied, and copies of other simulators' (one env each). The compiled MDP step then runs
+    one machine-code version for every simulator; each other layout would be another compile of seconds."""
+    arrays = {name: np.asfortranarray(value) for name, value in vars(s).items()}
+    arrays["contact"] = np.asfortranarray(s.contact, dtype=np.int8)
+    return SwarmState(**arrays)
+
+
 def uses_compiled_mdp(simulator: Simulator) -> bool:
     """Whether :class:`LandingEpisodes` steps ``simulator``'s MDP through :mod:`marlander_lite.task_kernels`: numba
     runs (``MARLANDER_LITE_ENGINE`` is not ``numpy``), the simulator does not run its numpy reference, and the plate
@@ -238,10 +247,12 @@ class LandingEpisodes:
         rel_pos = np.empty((e, n, 3), order="F")
         dist, speed, horizontal, r_drones = (np.empty((e, n), order="F") for _ in range(4))
         landed_now, crashed, out = (np.empty((e, n), dtype=bool, order="F") for _ in range(3))
+        s = fortran_state(s)
         _task_kernels().evaluate_step(
-            s.pos, s.quat, s.vel, s.ang_vel, s.pad_pos, s.pad_vel, s.contact, self._goal_lift, command, self.landed,
-            self.prev_dist, self._limits, self.task.observe_platform_velocity, self.task.observe_previous_command,
-            self._constants, obs, rel_pos, dist, speed, horizontal, landed_now, crashed, r_drones, out,
+            s.pos, s.quat, s.vel, s.ang_vel, s.pad_pos, s.pad_vel, s.contact, self._goal_lift,
+            np.asfortranarray(command, dtype=float), self.landed, self.prev_dist, self._limits,
+            self.task.observe_platform_velocity, self.task.observe_previous_command, self._constants, obs, rel_pos,
+            dist, speed, horizontal, landed_now, crashed, r_drones, out,
         )  # fmt: skip
         return obs, rel_pos, dist, speed, horizontal, landed_now, crashed, r_drones, out
 
@@ -264,7 +275,7 @@ class LandingEpisodes:
             ids = np.flatnonzero(ids)
         self.sim.reset(ids, self.rng)
         if self.compiled:
-            s = self.sim.state()
+            s = fortran_state(self.sim.state())
             obs = np.empty((len(ids), self.num_drones, self._channel_width), order="F")
             dist = np.empty((len(ids), self.num_drones), order="F")
             _task_kernels().observe_envs(

@@ -365,10 +365,11 @@ def action_to_velocity(action: Any, num_drones: int, max_speed: float) -> np.nda
             f"Action has shape {a.shape}; for {num_drones} drone(s) expected ({n3},), ({num_drones}, 3), "
             f"(num_envs, {n3}) or (num_envs, {num_drones}, 3)."
         )
-    kernels = compiled_kernels()
-    if kernels is not None:  # the same numbers in one pass, in the simulators' layout (env index fastest)
+    if compiled_kernels() is not None:  # the same numbers in one pass, in the simulators' layout (env index fastest)
+        from marlander_lite.task_kernels import velocity_commands  # here: it imports marlander_lite.pointmass
+
         velocity = np.empty(a.shape, order="F")
-        if kernels.velocity_commands(a, float(max_speed), velocity):
+        if velocity_commands(a, float(max_speed), velocity):
             return velocity
     elif np.isfinite(a).all():
         return np.clip(a.astype(np.float64, copy=False), -1.0, 1.0) * max_speed

@@ -4,10 +4,11 @@
 distances and speeds it needs, the touchdown test, eq. 5's per-drone reward and the arena test. In
 :mod:`marlander_lite.task` each is a whole-batch numpy expression that can be read against the paper, and they stay
 the reference. At training sizes (4096 envs x 2 drones, 1024 x 16) those few dozen expressions each make a pass over
-memory; :func:`evaluate_step` makes one pass and :func:`observe_envs` does the same for the environments a reset
-starts. Like :mod:`marlander_lite.pointmass.kernels` they repeat the reference's floating-point operations in the same
-order (no ``fastmath``), and ``tests/test_pointmass_kernels.py`` checks every output of seeded rollouts bit for bit
-against the numpy path. They apply on level plates; an inclined plate's pad-frame test stays in numpy.
+memory; :func:`evaluate_step` makes one pass, :func:`observe_envs` does the same for the environments a reset starts,
+and :func:`velocity_commands` is eq. 3's clip and scale. Like :mod:`marlander_lite.pointmass.kernels` they repeat the
+reference's floating-point operations in the same order (no ``fastmath``), and ``tests/test_pointmass_kernels.py``
+checks every output of seeded rollouts bit for bit against the numpy path. They apply on level plates; an inclined
+plate's pad-frame test stays in numpy.
 
 Arrays are ``(num_envs, N, ...)`` in any layout; the outputs are allocated by the caller.
 """
@@ -18,10 +19,26 @@ import math
 
 import numpy as np
 
-from marlander_lite.pointmass.kernels import CONTACT_NONE, CONTACT_OWN_PAD, _clip, jit_inline, jit_kernel
+from marlander_lite.pointmass.kernels import CONTACT_NONE, CONTACT_OWN_PAD, _clip, jit_kernel
 
 
-@jit_inline
+@jit_kernel
+def velocity_commands(action: np.ndarray, max_speed: float, velocity: np.ndarray) -> bool:
+    """:func:`marlander_lite.task.action_to_velocity` compiled: ``action`` ``(num_envs, N, 3)`` (any float dtype and
+    layout) clipped to ``[-1, 1]`` and scaled by ``max_speed`` into ``velocity`` (float64, its own layout). Returns
+    False, leaving ``velocity`` partly written, when an entry is NaN or infinite (the caller raises)."""
+    e, n = action.shape[0], action.shape[1]
+    finite = True
+    for c in range(3):
+        for i in range(n):
+            for k in range(e):
+                x = np.float64(action[k, i, c])
+                finite &= x - x == 0.0  # False for NaN and +-inf
+                velocity[k, i, c] = _clip(x, -1.0, 1.0) * max_speed
+    return finite
+
+
+@jit_kernel
 def _observe_drone(
     k: int,
     i: int,
@@ -61,7 +78,7 @@ def _observe_drone(
     return p0, p1, p2, v0, v1, v2
 
 
-@jit_inline
+@jit_kernel
 def _observe_extras(
     env_ids: np.ndarray,
     pad_vel: np.ndarray,

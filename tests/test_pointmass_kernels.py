@@ -69,8 +69,8 @@ def test_compiled_policy_input_is_numpys_cast_to_the_last_bit(monkeypatch, order
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64, np.int64])
 def test_compiled_velocity_commands_are_eq3_to_the_last_bit_and_refuse_nan(monkeypatch, dtype):
-    """``task.action_to_velocity`` through ``kernels.velocity_commands``: numpy's clip and scale of every entry, and
-    the same error for a NaN or infinite one."""
+    """``task.action_to_velocity`` through ``task_kernels.velocity_commands``: numpy's clip and scale of every
+    entry, and the same error for a NaN or infinite one."""
     rng = np.random.default_rng(int(np.dtype(dtype).itemsize))
     action = (rng.uniform(-1.6, 1.6, (37, 3 * 5)) * (3 if dtype == np.int64 else 1)).astype(dtype)
     monkeypatch.setenv(kernels.ENGINE_VARIABLE, "numpy")

@@ -148,23 +148,6 @@ def min_separation(pos: np.ndarray) -> np.ndarray:
     return out
 
 
-# ---------------------------------------------------------------- eq. 3: actions to velocity commands
-@jit_kernel
-def velocity_commands(action: np.ndarray, max_speed: float, velocity: np.ndarray) -> bool:
-    """:func:`marlander_lite.task.action_to_velocity` compiled: ``action`` ``(num_envs, N, 3)`` (any float dtype and
-    layout) clipped to ``[-1, 1]`` and scaled by ``max_speed`` into ``velocity`` (float64, its own layout). Returns
-    False, leaving ``velocity`` partly written, when an entry is NaN or infinite (the caller raises)."""
-    e, n = action.shape[0], action.shape[1]
-    finite = True
-    for c in range(3):
-        for i in range(n):
-            for k in range(e):
-                x = np.float64(action[k, i, c])
-                finite &= x - x == 0.0  # False for NaN and +-inf
-                velocity[k, i, c] = _clip(x, -1.0, 1.0) * max_speed
-    return finite
-
-
 # ---------------------------------------------------------------- the policy's input
 @jit_kernel
 def policy_rows(obs: np.ndarray, out: np.ndarray) -> None:

@@ -331,7 +331,8 @@ class PointMassSwarm:
 
     def _compiled_step(self, velocity: np.ndarray) -> None:
         """:meth:`step` through :mod:`~marlander_lite.pointmass.kernels`: the same operations, drone by drone."""
-        velocity = np.asarray(velocity, dtype=float)
+        # One memory layout for every caller: each layout is one more compile of the kernels (seconds each).
+        velocity = np.asfortranarray(velocity, dtype=float)
         if velocity.shape != self.pos.shape:  # the kernels do not check bounds
             raise ValueError(f"velocity must have shape {self.pos.shape} (num_envs, N, 3), got {velocity.shape}.")
         family = self.family is not None
