@@ -1,10 +1,11 @@
 """The documentation site builds, every notebook page shows its figures, and no internal link is broken.
 
-Builds the site as README's "Documentation" section says (``MARLANDER_BUDGET=small mkdocs build``,
-notebooks executed by mkdocs-jupyter), then opens the notebook pages in headless Chromium and decodes
-the output images of the DOM it built. Links are checked on the built HTML: every ``href`` and ``src``
-that stays inside the site must name a file that exists. Chromium is Debian's ``chromium`` package (``.ci/run`` installs
-it when it can); without it the figure check is skipped, the link check still runs.
+Builds the site as README's "Documentation" section says (``MARLANDER_BUDGET=small mkdocs build``), from the
+notebooks as the notebook tests executed them (``conftest.executed_notebook``: each runs once per session, and
+``MARLANDER_DOCS_NOTEBOOKS`` hands the executed copies to mkdocs-jupyter), then opens the notebook pages in
+headless Chromium and decodes the output images of the DOM it built. Links are checked on the built HTML: every
+``href`` and ``src`` that stays inside the site must name a file that exists. Chromium is Debian's ``chromium``
+package (``.ci/run`` installs it when it can); without it the figure check is skipped, the link check still runs.
 
 One test function builds once and checks everything, so that ``pytest -n 2`` never builds twice.
 """
@@ -125,10 +126,18 @@ def test_the_link_check_finds_a_broken_link(tmp_path):
 
 @pytest.mark.slow
 @pytest.mark.notebooks
-def test_site_builds_shows_every_figure_and_has_no_broken_link(tmp_path):
+def test_site_builds_shows_every_figure_and_has_no_broken_link(tmp_path, executed_notebook):
     pytest.importorskip("mkdocs_jupyter", reason="the docs extra is not installed (pip install -r environment.lock)")
     site = tmp_path / "site"
-    env = {**os.environ, "MARLANDER_BUDGET": "small", "MARLANDER_DOCS_EXECUTE": "true"}
+    # Newest notebooks first: the notebook tests on another worker usually start from the oldest, so that the two
+    # run different notebooks at the same time instead of one waiting for the other's run.
+    copies = [executed_notebook(nb_path.name) for nb_path in reversed(NOTEBOOKS)]
+    env = {
+        **os.environ,
+        "MARLANDER_BUDGET": "small",
+        "MARLANDER_DOCS_EXECUTE": "false",
+        "MARLANDER_DOCS_NOTEBOOKS": str(copies[0].parent),
+    }
     build = subprocess.run(
         [sys.executable, "-m", "mkdocs", "build", "--strict", "-f", str(ROOT / "mkdocs.yml"), "-d", str(site)],
         cwd=ROOT,

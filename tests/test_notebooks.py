@@ -14,7 +14,6 @@ import csv
 import functools
 import json
 import math
-import os
 import re
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -22,7 +21,6 @@ from pathlib import Path
 
 import nbformat
 import pytest
-from nbclient import NotebookClient
 
 from marlander_lite.experiments.controllers import CONTROLLER_LABELS
 from marlander_lite.pointmass.family import DynamicsFamily
@@ -710,11 +708,8 @@ def test_notebook_is_committed_without_outputs(name):
 @pytest.mark.slow
 @pytest.mark.notebooks
 @pytest.mark.parametrize("name", sorted(EXPECTED_TEXT))
-def test_notebook_runs_with_the_small_budget(name, monkeypatch):
-    monkeypatch.setenv("MARLANDER_BUDGET", "small")
-    nb = nbformat.read(NOTEBOOKS / name, as_version=4)
-    client = NotebookClient(nb, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(NOTEBOOKS)}})
-    client.execute(env=dict(os.environ))  # raises CellExecutionError on any failing cell
+def test_notebook_runs_with_the_small_budget(name, executed_notebook):
+    nb = nbformat.read(executed_notebook(name), as_version=4)  # run once per session (conftest.executed_notebook)
     text = "".join(o.get("text", "") for c in nb.cells if c.cell_type == "code" for o in c.outputs)
     for expected in EXPECTED_TEXT[name]:
         assert expected in text, f"{name} did not print {expected!r}"
