@@ -10,7 +10,7 @@ simulators are thin layers over this one class.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -125,6 +125,31 @@ class StepOutcome:
         return self.terminated | self.truncated
 
 
+def _task_kernels() -> Any:
+    # Imported here, not at the top: marlander_lite.pointmass, whose kernels these build on, imports this module.
+    from marlander_lite import task_kernels
+
+    return task_kernels
+
+
+def fortran_state(s: SwarmState) -> SwarmState:
+    """``s`` with every array in the point-mass layout (environment index fastest; ``contact`` as int8): the point
+    mass's own arrays, not copied, and copies of other simulators' (one env each). The compiled MDP step then runs
+    one machine-code version for every simulator; each other layout would be another compile of seconds."""
+    arrays = {name: np.asfortranarray(value) for name, value in vars(s).items()}
+    arrays["contact"] = np.asfortranarray(s.contact, dtype=np.int8)
+    return SwarmState(**arrays)
+
+
+def uses_compiled_mdp(simulator: Simulator) -> bool:
+    """Whether :class:`LandingEpisodes` steps ``simulator``'s MDP through :mod:`marlander_lite.task_kernels`: numba
+    runs (``MARLANDER_LITE_ENGINE`` is not ``numpy``), the simulator does not run its numpy reference, and the plate
+    is level (an inclined plate's pad-frame test stays in numpy)."""
+    if simulator.platform.geometry.inclination_deg or getattr(simulator, "engine", None) == "numpy":
+        return False
+    return task.compiled_kernels() is not None
+
+
 class LandingEpisodes:
     """The MARLander MDP over ``simulator.num_envs`` environments stepped together.
 
@@ -170,6 +195,18 @@ class LandingEpisodes:
         self._seen_pad_vel = np.zeros((e, n, 3))
         # The frames are stacked last, from what the policy would see now (TaskConfig.observation_history).
         self.history = ObservationHistory(self.task.observation_history, (e, n), self.task.frame_per_drone)
+        self._channel_width = channel_width
+        self.compiled = uses_compiled_mdp(simulator)
+        """Whether each step's MDP runs as :mod:`marlander_lite.task_kernels` (the same bits as the numpy reference):
+        when numba runs (``MARLANDER_LITE_ENGINE``, or the simulator's ``engine``) and the plate is level."""
+        if self.compiled:
+            p_max, _, v_max, w_max = task.OBS_LIMITS
+            self._limits = np.array([p_max, v_max, w_max], dtype=float)
+            radius, speed_max = task.touchdown_limits(self.pad_radius, self.task)
+            cfg = self.task
+            self._constants = np.array(
+                [radius, speed_max, cfg.alpha, cfg.beta, cfg.c, cfg.arena_half_width, cfg.arena_height], dtype=float
+            )
 
     def seed(self, seed: int | None) -> None:
         """Restart the random generator: the same seed gives the same resets and noise."""
@@ -202,6 +239,23 @@ class LandingEpisodes:
         command = command if self.task.observe_previous_command else None
         return rel_pos, rel_vel, task.observe(rel_pos, s.quat, rel_vel, s.ang_vel, pad_vel, command)
 
+    def _evaluate(self, s: SwarmState, command: np.ndarray) -> tuple[np.ndarray, ...]:
+        """:func:`marlander_lite.task_kernels.evaluate_step` on fresh arrays: ``(obs, rel_pos, dist, speed,
+        horizontal, landed_now, crashed, r_drones, out)``, as the numpy lines of :meth:`step` compute them."""
+        e, n = self.num_envs, self.num_drones
+        obs = np.empty((e, n, self._channel_width), order="F")
+        rel_pos = np.empty((e, n, 3), order="F")
+        dist, speed, horizontal, r_drones = (np.empty((e, n), order="F") for _ in range(4))
+        landed_now, crashed, out = (np.empty((e, n), dtype=bool, order="F") for _ in range(3))
+        s = fortran_state(s)
+        _task_kernels().evaluate_step(
+            s.pos, s.quat, s.vel, s.ang_vel, s.pad_pos, s.pad_vel, s.contact, self._goal_lift,
+            np.asfortranarray(command, dtype=float), self.landed, self.prev_dist, self._limits,
+            self.task.observe_platform_velocity, self.task.observe_previous_command, self._constants, obs, rel_pos,
+            dist, speed, horizontal, landed_now, crashed, r_drones, out,
+        )  # fmt: skip
+        return obs, rel_pos, dist, speed, horizontal, landed_now, crashed, r_drones, out
+
     def pad_offset(self, rel_pos: np.ndarray) -> np.ndarray:
         """Distance of each drone from its pad centre within the pad plane, ``(num_envs, N)`` m.
 
@@ -217,17 +271,31 @@ class LandingEpisodes:
     def reset(self, env_ids: np.ndarray | None = None) -> np.ndarray:
         """Start new episodes in ``env_ids`` (all by default); returns their observations ``(k, N, 13)``."""
         ids = np.arange(self.num_envs) if env_ids is None else np.asarray(env_ids)
+        if ids.dtype == bool:
+            ids = np.flatnonzero(ids)
         self.sim.reset(ids, self.rng)
-        s = self.sim.state().take(ids)
-        rel_pos, _, obs = self._measure(s, np.zeros_like(s.vel))
+        if self.compiled:
+            s = fortran_state(self.sim.state())
+            obs = np.empty((len(ids), self.num_drones, self._channel_width), order="F")
+            dist = np.empty((len(ids), self.num_drones), order="F")
+            _task_kernels().observe_envs(
+                ids.astype(np.int64, copy=False), s.pos, s.quat, s.vel, s.ang_vel, s.pad_pos, s.pad_vel,
+                self._goal_lift, self._limits, self.task.observe_platform_velocity, self.task.observe_previous_command,
+                obs, dist,
+            )  # fmt: skip
+            pos = s.pos[ids]
+        else:
+            s = self.sim.state().take(ids)
+            rel_pos, _, obs = self._measure(s, np.zeros_like(s.vel))
+            dist, pos = vector_norm(rel_pos), s.pos
         self.steps[ids] = 0
         self.landed[ids] = False
-        self.prev_dist[ids] = vector_norm(rel_pos)
+        self.prev_dist[ids] = dist
         self.landing_error[ids] = np.nan
         self.landing_time[ids] = np.nan
         self.episode_return[ids] = 0.0
         self.previous_command[ids] = 0.0
-        self.min_separation[ids] = task.min_separation(s.pos)
+        self.min_separation[ids] = task.min_separation(pos)
         seen = self.channel.reset(ids, obs, self.rng)
         if self._observes_acceleration:
             self.pad_acceleration[ids] = 0.0
@@ -268,13 +336,19 @@ class LandingEpisodes:
             raise ValueError(f"Action batch has {velocity.shape[0]} environments; expected {self.num_envs}.")
         self.sim.step(velocity)
         s = self.sim.state()
-        rel_pos, rel_vel, obs = self._measure(s, velocity)
-        dist = vector_norm(rel_pos)
-        speed = vector_norm(rel_vel)
-        horizontal = self.pad_offset(rel_pos)
         active = ~self.landed
-        landed_now, crashed = task.touchdown_outcome(s.contact, horizontal, speed, self.landed, self.pad_radius, cfg)
-        r_drones = task.drone_rewards(self.prev_dist, dist, speed, landed_now, active, cfg)
+        if self.compiled:  # the same formulas as below, in one compiled pass
+            obs, rel_pos, dist, speed, horizontal, landed_now, crashed, r_drones, out = self._evaluate(s, velocity)
+        else:
+            rel_pos, rel_vel, obs = self._measure(s, velocity)
+            dist = vector_norm(rel_pos)
+            speed = vector_norm(rel_vel)
+            horizontal = self.pad_offset(rel_pos)
+            landed_now, crashed = task.touchdown_outcome(
+                s.contact, horizontal, speed, self.landed, self.pad_radius, cfg
+            )
+            r_drones = task.drone_rewards(self.prev_dist, dist, speed, landed_now, active, cfg)
+            out = task.outside_arena(s.pos, cfg) & active
         if cfg.landing_precision_bonus:
             r_drones += training_aids.landing_precision_reward(horizontal, landed_now, self.pad_radius, cfg)
         if training_aids.uses_training_penalties(cfg):
@@ -289,7 +363,6 @@ class LandingEpisodes:
         self.landed |= landed_now
         all_landed = self.landed.all(axis=-1)
         reward = task.team_reward(r_drones, collided, all_landed & landed_now.any(axis=-1), cfg)
-        out = task.outside_arena(s.pos, cfg) & active
         self.steps += 1
         terminated = all_landed | crashed.any(axis=-1) | collided | out.any(axis=-1)
         truncated = (self.steps >= cfg.max_steps) & ~terminated

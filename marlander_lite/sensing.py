@@ -123,6 +123,8 @@ class ObservationChannel:
 
     def reset(self, env_ids: np.ndarray, obs: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """Start ``env_ids`` afresh from ``obs`` (their history holds nothing older) and return what the policy sees."""
+        if self.config.is_perfect:  # no history is read (observe), none kept
+            return obs
         self._history[:, env_ids] = obs
         if self.config.latency_spread_s:
             spread = self.config.latency_spread_s

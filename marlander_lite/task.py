@@ -352,7 +352,9 @@ def action_to_velocity(action: Any, num_drones: int, max_speed: float) -> np.nda
     Gaussian heads sample beyond the box); NaN or infinite entries raise, since no safe velocity
     can be read from them.
     """
-    a = np.asarray(action, dtype=np.float64)
+    a = np.asarray(action)
+    if a.dtype not in (np.float32, np.float64):  # a policy's float32 stays as it is: the kernel reads it exactly
+        a = a.astype(np.float64)
     n3 = ACT_PER_DRONE * num_drones
     if a.shape in ((n3,), (num_drones, ACT_PER_DRONE)):
         a = a.reshape(1, num_drones, ACT_PER_DRONE)
@@ -363,9 +365,15 @@ def action_to_velocity(action: Any, num_drones: int, max_speed: float) -> np.nda
             f"Action has shape {a.shape}; for {num_drones} drone(s) expected ({n3},), ({num_drones}, 3), "
             f"(num_envs, {n3}) or (num_envs, {num_drones}, 3)."
         )
-    if not np.isfinite(a).all():
-        raise ValueError(f"Action contains NaN or infinite values: {np.asarray(action)!r}. Every entry must be finite.")
-    return np.clip(a, -1.0, 1.0) * max_speed
+    if compiled_kernels() is not None:  # the same numbers in one pass, in the simulators' layout (env index fastest)
+        from marlander_lite.task_kernels import velocity_commands  # here: it imports marlander_lite.pointmass
+
+        velocity = np.empty(a.shape, order="F")
+        if velocity_commands(a, float(max_speed), velocity):
+            return velocity
+    elif np.isfinite(a).all():
+        return np.clip(a.astype(np.float64, copy=False), -1.0, 1.0) * max_speed
+    raise ValueError(f"Action contains NaN or infinite values: {np.asarray(action)!r}. Every entry must be finite.")
 
 
 def next_target_position(pos: np.ndarray, velocity: np.ndarray, dt: float) -> np.ndarray:
@@ -465,14 +473,21 @@ def touchdown_outcome(
     ``touchdown_speed_max`` relative to the pad. Any other contact (floor, plate, another pad,
     too fast, off-centre) is a crash.
     """
+    pad_radius, speed_max = touchdown_limits(pad_radius, config)
+    touching = (contact != CONTACT_NONE) & ~landed_before
+    landed_now = touching & (contact == CONTACT_OWN_PAD) & (horizontal_error <= pad_radius) & (rel_speed <= speed_max)
+    return landed_now, touching & ~landed_now
+
+
+def touchdown_limits(pad_radius: float, config: TaskConfig) -> tuple[float, float]:
+    """The largest distance from the pad centre (m) and relative speed (m/s) at which :func:`touchdown_outcome`
+    counts a touchdown as a landing: the pad radius and ``touchdown_speed_max``, or the stricter training aids."""
     if config.landing_tolerance is not None:
         pad_radius = min(pad_radius, config.landing_tolerance)
     speed_max = config.touchdown_speed_max
     if config.training_touchdown_speed is not None:
         speed_max = min(speed_max, config.training_touchdown_speed)
-    touching = (contact != CONTACT_NONE) & ~landed_before
-    landed_now = touching & (contact == CONTACT_OWN_PAD) & (horizontal_error <= pad_radius) & (rel_speed <= speed_max)
-    return landed_now, touching & ~landed_now
+    return pad_radius, speed_max
 
 
 def pad_frame_errors(rel_pos: np.ndarray, normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -674,6 +674,11 @@ def check_09(shown: Shown) -> None:
     assert close(limit, 0.62, 0.001)
     [(closest,)] = shown.numbers(r"closest approach (\S+) m")
     assert closest >= 0.185
+    # The two engines of the point-mass swarm fly the same random actions to the same bits, and the benchmark's
+    # latest figures are shown beside the live timing.
+    assert "swarms x 16 drones, 7 steps: the same bits on both engines: True" in shown.text
+    assert re.search(r"bench_pointmass_2026-\d\d-\d\d\.txt:\n", shown.text)
+    assert "Target: >= 5 at both sizes." in shown.text
 
 
 VALUE_CHECKS: dict[str, Callable[[Shown], None]] = {

@@ -67,6 +67,29 @@ def test_compiled_policy_input_is_numpys_cast_to_the_last_bit(monkeypatch, order
     assert rows[0, 0, 0] == 1.0 and np.signbit(rows[0, 0, 1]) and rows[0, 0, 2] == 0.0
 
 
+@pytest.mark.parametrize("dtype", [np.float32, np.float64, np.int64])
+def test_compiled_velocity_commands_are_eq3_to_the_last_bit_and_refuse_nan(monkeypatch, dtype):
+    """``task.action_to_velocity`` through ``task_kernels.velocity_commands``: numpy's clip and scale of every
+    entry, and the same error for a NaN or infinite one."""
+    rng = np.random.default_rng(int(np.dtype(dtype).itemsize))
+    action = (rng.uniform(-1.6, 1.6, (37, 3 * 5)) * (3 if dtype == np.int64 else 1)).astype(dtype)
+    monkeypatch.setenv(kernels.ENGINE_VARIABLE, "numpy")
+    reference = task.action_to_velocity(action, 5, 2.5)
+    monkeypatch.setenv(kernels.ENGINE_VARIABLE, "numba")
+    compiled = task.action_to_velocity(action, 5, 2.5)
+    assert compiled.dtype == np.float64 and compiled.shape == (37, 5, 3) and compiled.flags.f_contiguous
+    np.testing.assert_array_equal(compiled, reference)
+    expected = np.clip(action.astype(np.float64), -1, 1).reshape(37, 5, 3) * 2.5  # eq. 3 by hand
+    np.testing.assert_array_equal(compiled, expected)
+    if dtype != np.int64:
+        for bad in (np.nan, np.inf, -np.inf):
+            action[4, 7] = bad
+            for engine in ("numpy", "numba"):
+                monkeypatch.setenv(kernels.ENGINE_VARIABLE, engine)
+                with pytest.raises(ValueError, match="NaN or infinite"):
+                    task.action_to_velocity(action, 5, 2.5)
+
+
 def spawn(monkeypatch, engine, num_drones, near_fraction, separation, swarms=60, seed=3, near_low=0.15):
     """Starting positions of ``swarms`` swarms over plates of random heights with pads 0.25 m apart (near-pad
     starts included), and the next numbers of the generator, drawn through ``engine``."""
@@ -114,11 +137,13 @@ def go_to_pad(obs: np.ndarray, num_drones: int) -> np.ndarray:
     return (v / 3.0).reshape(len(p), -1)
 
 
-def rollout(engine, platform, num_drones, params, sensing, num_envs=24, steps=120):
+def rollout(engine, platform, num_drones, params, sensing, num_envs=24, steps=120, **task_options):
     """Every state and outcome of a seeded rollout: landing controller or random actions, auto-resets, and
     stopped motors in some drones half way."""
-    sim = PointMassSwarm(TaskConfig(num_drones=num_drones), PlatformConfig(kind=platform), num_envs, params, engine)
+    cfg = TaskConfig(num_drones=num_drones, **task_options)
+    sim = PointMassSwarm(cfg, PlatformConfig(kind=platform), num_envs, params, engine)
     episodes = LandingEpisodes(sim, sensing, seed=7)
+    assert episodes.compiled == (engine == "numba")  # the MDP step follows the simulator's engine
     obs = episodes.reset()
     rng = np.random.default_rng(1)
     careful = rng.random(num_envs) < 0.7  # these envs fly the landing controller, the others at random
@@ -130,7 +155,9 @@ def rollout(engine, platform, num_drones, params, sensing, num_envs=24, steps=12
         out = episodes.step(action)
         obs = out.obs
         state = [sim.pos, sim.vel, sim.quat, sim.ang_vel, sim.contact]  # updated in place: copy now
-        records.append([out.obs, out.reward, out.landed_now, *(np.array(a, copy=True) for a in state)])
+        outcome = [out.obs, out.reward, out.drone_rewards, out.landed_now, out.crashed, out.out_of_arena, out.rel_speed]
+        outcome += [out.landing_error, out.landing_time, out.min_separation, out.terminated, out.truncated]
+        records.append([*outcome, *(np.array(a, copy=True) for a in state)])
         events += (out.landed_now.sum(), out.crashed.sum(), out.collided.sum(), (sim.contact != 0).sum())
         if out.done.any():
             ids = np.flatnonzero(out.done)
@@ -140,20 +167,25 @@ def rollout(engine, platform, num_drones, params, sensing, num_envs=24, steps=12
     return sim, records, events
 
 
+# The observation's extras and the training aids (which read p) go through the compiled MDP step's other branches.
+EXTRAS = {"observe_platform_velocity": True, "observe_previous_command": True}
+AIDS = {"landing_precision_bonus": 50.0, "approach_cone_penalty": 0.5, "action_change_penalty": 0.1}
+
+
 @pytest.mark.parametrize(
-    ("platform", "num_drones", "family", "sensing"),
+    ("platform", "num_drones", "family", "sensing", "task_options"),
     [
-        ("static-floor", 2, False, None),
-        ("static-floor", 3, True, SensingConfig.vicon()),
-        ("static-elevated", 1, True, SensingConfig.vicon()),
-        ("moving-linear", 2, False, None),
-        ("moving-arc", 4, False, SensingConfig.robust()),
+        ("static-floor", 2, False, None, {}),
+        ("static-floor", 3, True, SensingConfig.vicon(), AIDS),
+        ("static-elevated", 1, True, SensingConfig.vicon(), {}),
+        ("moving-linear", 2, False, None, EXTRAS),
+        ("moving-arc", 4, False, SensingConfig.robust(), {}),
     ],
 )
-def test_compiled_engine_flies_the_reference_bit_for_bit(platform, num_drones, family, sensing):
+def test_compiled_engine_flies_the_reference_bit_for_bit(platform, num_drones, family, sensing, task_options):
     params = PointMassParams(family=DynamicsFamily()) if family else None
-    sim, reference, events = rollout("numpy", platform, num_drones, params, sensing)
-    compiled_sim, compiled, compiled_events = rollout("numba", platform, num_drones, params, sensing)
+    sim, reference, events = rollout("numpy", platform, num_drones, params, sensing, **task_options)
+    compiled_sim, compiled, compiled_events = rollout("numba", platform, num_drones, params, sensing, **task_options)
     assert (sim.engine, compiled_sim.engine) == ("numpy", "numba")
     landings, crashes, _, contacts = events
     assert crashes > 0 and contacts > 0, events  # the rollouts reach the contact branches ...
@@ -202,3 +234,30 @@ def test_asking_for_numba_without_it_says_how_to_get_it(monkeypatch):
     assert kernels.resolve_engine("auto") == "numpy"
     with pytest.raises(ValueError, match="pip install numba"):
         kernels.resolve_engine("numba")
+
+
+def test_the_compiled_mdp_step_judges_a_pybullet_flight_as_the_numpy_one(monkeypatch):
+    """The MDP's kernels (``task_kernels``) serve every simulator: over the PyBullet Crazyflie (its own compiled
+    ticks in both runs) the episodes with and without them give the same observations, rewards and touchdowns."""
+    from marlander_lite.crazyflie.simulator import CrazyflieSwarm
+
+    records = {}
+    for engine in ("numpy", "numba"):
+        monkeypatch.setenv(kernels.ENGINE_VARIABLE, engine)  # the MDP's choice; the simulator's is fixed below
+        sim = CrazyflieSwarm(TaskConfig(num_drones=2), PlatformConfig(), controller="firmware", engine="numba")
+        episodes = LandingEpisodes(sim, SensingConfig.vicon(), seed=4)
+        assert episodes.compiled == (engine == "numba")
+        obs, rows = episodes.reset(), []
+        for _ in range(200):  # descend onto the pads: touchdowns (landed or crashed) within the flight
+            out = episodes.step(go_to_pad(obs.reshape(1, -1), 2))
+            obs = out.obs
+            rows.append([out.obs, out.reward, out.drone_rewards, out.landed_now, out.crashed, out.rel_speed])
+            if out.done.any():
+                obs = episodes.reset()
+        sim.close()
+        records[engine] = rows
+    touchdowns = sum(int(r[3].sum() + r[4].sum()) for r in records["numpy"])
+    assert touchdowns > 0
+    for ours, theirs in zip(records["numba"], records["numpy"], strict=True):
+        for a, b in zip(ours, theirs, strict=True):
+            assert np.array_equal(a, b, equal_nan=True)

@@ -112,8 +112,8 @@ def test_point_mass_observations_are_eq2_of_its_state_to_the_last_bit():
 
 
 def test_point_mass_steps_identically_from_row_major_and_fortran_commands():
-    """task.action_to_velocity returns row-major commands and the point mass copies them into its own layout;
-    the layout must not change a single bit of the flight."""
+    """Commands may come in either memory layout (task.action_to_velocity returns the simulators' own when numba
+    runs, row-major otherwise); the layout must not change a single bit of the flight."""
     sims = [PointMassSwarm(TaskConfig(num_drones=2), PlatformConfig(kind="moving-linear"), num_envs=7) for _ in "CF"]
     for sim in sims:
         sim.reset(np.arange(7), np.random.default_rng(5))

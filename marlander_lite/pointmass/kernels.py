@@ -16,6 +16,11 @@ What the kernels promise, and how:
   step is split in two kernels with numpy's ``np.arctan2`` in between. ``tests/test_pointmass_kernels.py``
   checks bit equality over seeded rollouts with resets, touchdowns, collisions, moving plates, stopped
   motors and dynamics-family draws.
+* **Vectorised.** The loops over environments run several drones at once in the vector registers (four
+  doubles with AVX2): square roots and divisions are correctly rounded there too, so the bits stay the same. For
+  LLVM to do that, a loop's body must be straight-line code (the dynamics family's terms live in their own copy of
+  the loop, the command delay in its own kernel) and LLVM may check at run time that a dozen arrays do not overlap
+  (the option set below).
 * **Numba is optional.** Without it (or with ``MARLANDER_LITE_ENGINE=numpy`` in the environment), nothing
   here is compiled and the simulator runs the reference. :func:`resolve_engine` decides.
 * **Little compile cost.** ``cache=True`` keeps the machine code on disk (next to this file, or in numba's
@@ -36,9 +41,18 @@ from typing import Any, Literal
 import numpy as np
 
 try:  # numba is optional: without it the simulator runs the numpy reference
+    import llvmlite.binding
     import numba
 except ImportError:  # pragma: no cover - depends on the installation
     numba = None
+else:
+    # The kernels below read and write a dozen arrays per loop. LLVM vectorises such a loop only after runtime checks
+    # that the arrays do not overlap, and by default gives up beyond 8 of them: the physics loop then runs one drone
+    # at a time, about twice as slow (benchmarks/bench_pointmass.py). Raising the limits lets it check and vectorise.
+    # The checks fall back to the scalar loop when arrays do overlap, so no result changes; numba itself sets LLVM
+    # options this way. It applies to whatever this process compiles from now on.
+    llvmlite.binding.set_option("marlander_lite", "-runtime-memory-check-threshold=256")
+    llvmlite.binding.set_option("marlander_lite", "-vectorize-memory-check-threshold=1024")
 
 Engine = Literal["auto", "numpy", "numba"]
 ENGINES: tuple[str, ...] = ("auto", "numpy", "numba")
@@ -79,20 +93,28 @@ def jit_kernel(function: Callable[..., Any]) -> Callable[..., Any]:
     return numba.njit(cache=True, nogil=True, error_model="numpy")(function) if numba is not None else function
 
 
+def jit_inline(function: Callable[..., Any]) -> Callable[..., Any]:
+    """:func:`jit_kernel` for small helpers, inlined into the kernels that call them (numba IR inlining), so that
+    LLVM sees their constant arguments and straight-line code in the kernels' loops, which it can vectorise."""
+    if numba is None:
+        return function
+    return numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")(function)
+
+
 # ---------------------------------------------------------------- numpy's elementwise choices, as scalars
-@jit_kernel
+@jit_inline
 def _clip(x: float, low: float, high: float) -> float:
     """``np.clip``: keeps ``x`` when it is inside, signed zero and NaN included."""
     return low if x < low else (high if x > high else x)
 
 
-@jit_kernel
+@jit_inline
 def _maximum(a: float, b: float) -> float:
     """``np.maximum(a, b)``: NaN wins; on a tie (``-0.0, 0.0``) numpy returns ``b``."""
     return a if (a > b or a != a) else b
 
 
-@jit_kernel
+@jit_inline
 def _minimum(a: float, b: float) -> float:
     """``np.minimum(a, b)``: NaN wins; on a tie numpy returns ``b``."""
     return a if (a < b or a != a) else b
@@ -143,14 +165,62 @@ def policy_rows(obs: np.ndarray, out: np.ndarray) -> None:
                 out[k, column] = obs[k, i, c]
 
 
-# ---------------------------------------------------------------- the step, in two halves
+# ---------------------------------------------------------------- a reset
 @jit_kernel
+def rest_envs(
+    env_ids: np.ndarray,
+    vel: np.ndarray,
+    ang_vel: np.ndarray,
+    quat: np.ndarray,
+    thrust_dir: np.ndarray,
+    landed: np.ndarray,
+    motors_stopped: np.ndarray,
+) -> None:
+    """``PointMassSwarm._at_rest`` for whole envs ``env_ids``: at rest, level (thrust axis up), not landed, motors
+    on."""
+    for i in range(vel.shape[1]):
+        for k in env_ids:
+            for c in range(3):
+                vel[k, i, c] = 0.0
+                ang_vel[k, i, c] = 0.0
+            quat[k, i, 0], quat[k, i, 1], quat[k, i, 2], quat[k, i, 3] = 0.0, 0.0, 0.0, 1.0
+            thrust_dir[k, i, 0], thrust_dir[k, i, 1], thrust_dir[k, i, 2] = 0.0, 0.0, 1.0
+            landed[k, i] = False
+            motors_stopped[k, i] = False
+
+
+# ---------------------------------------------------------------- the step, in two halves
+@jit_inline
 def _rest_height(
     x: float, y: float, plate_pos: np.ndarray, k: int, half_x: float, half_y: float, lift: float, floor: float
 ) -> float:
     """``PointMassSwarm._surface``'s rest height on a level plate: the plate top over the plate, else the floor."""
     over_plate = abs(x - plate_pos[k, 0]) <= half_x and abs(y - plate_pos[k, 1]) <= half_y
     return plate_pos[k, 2] + lift if over_plate else floor
+
+
+@jit_kernel
+def delayed_commands(
+    velocity: np.ndarray, cmd_gain: np.ndarray, latency: np.ndarray, commands: np.ndarray, acting: np.ndarray
+) -> None:
+    """The command a drone drawn from a dynamics family acts on (``PointMassSwarm._family_thrust``'s first lines).
+
+    ``velocity`` ``(num_envs, N, 3)`` m/s is scaled by the drone's gain error and arrives ``latency`` policy periods
+    late: ``acting`` gets the blend of it with the two previous commands, which ``commands`` ``(2, num_envs, N, 3)``
+    holds and which move one slot on.
+    """
+    e, n = velocity.shape[0], velocity.shape[1]
+    for i in range(n):
+        for k in range(e):
+            g = cmd_gain[k, i, 0]
+            late = _clip(latency[k, i, 0], 0.0, 1.0)
+            later = _clip(latency[k, i, 0] - 1.0, 0.0, 1.0)
+            for c in range(3):
+                now = velocity[k, i, c] * g
+                older = (1.0 - later) * commands[0, k, i, c] + later * commands[1, k, i, c]
+                acting[k, i, c] = (1.0 - late) * now + late * older
+                commands[1, k, i, c] = commands[0, k, i, c]
+                commands[0, k, i, c] = now
 
 
 @jit_kernel
@@ -166,9 +236,6 @@ def thrust_and_integrate(
     thrust_min: np.ndarray,
     thrust_max: np.ndarray,
     family: bool,
-    cmd_gain: np.ndarray,
-    latency: np.ndarray,
-    commands: np.ndarray,
     inv_mass: np.ndarray,
     drag: np.ndarray,
     cushion: np.ndarray,
@@ -182,79 +249,118 @@ def thrust_and_integrate(
     cos: np.ndarray,
     quat: np.ndarray,
 ) -> None:
-    """First half of ``PointMassSwarm.step`` for level plates: ``_thrust`` (or ``_family_thrust``), stopped
-    motors, the position and velocity update, and ``_set_attitude`` up to its ``arctan2``.
+    """First half of ``PointMassSwarm.step`` for level plates: ``_thrust`` (or ``_family_thrust``, given the
+    command :func:`delayed_commands` made act), stopped motors, the position and velocity update, and
+    ``_set_attitude`` up to its ``arctan2``.
 
-    Updates ``pos``, ``vel``, ``thrust_dir``, ``quat`` (and ``commands`` for a family) in place and writes
-    ``start`` (positions before the step), ``cross`` (``d_prev x d``), ``sin`` (its norm) and ``cos``
-    (``d_prev . d``) for :func:`attitude_rates_and_contacts`. Per-env parameters have a drone axis of
-    length 1, per-drone ones (a family) of length N. ``surface`` is ``(half_x, half_y, lift, landed_height)``.
+    Updates ``pos``, ``vel``, ``thrust_dir`` and ``quat`` in place and writes ``start`` (positions before the step),
+    ``cross`` (``d_prev x d``), ``sin`` (its norm) and ``cos`` (``d_prev . d``) for
+    :func:`attitude_rates_and_contacts`. Per-env parameters have a drone axis of length 1, per-drone ones (a family)
+    of length N. ``surface`` is ``(half_x, half_y, lift, landed_height)``. The loop is written twice, with and without
+    the family's terms, so that each has no branch LLVM cannot turn into a vector select.
     """
     e, n = pos.shape[0], pos.shape[1]
     per_drone = gain.shape[1] > 1
-    half_x, half_y, lift, floor = surface[0], surface[1], surface[2], surface[3]
+    if family:
+        for i in range(n):
+            for k in range(e):
+                _drone_step(
+                    k, i, i if per_drone else 0, True, velocity, pos, vel, thrust_dir, motors_stopped, gain, turn,
+                    tan_tilt, thrust_min, thrust_max, inv_mass, drag, cushion, use_cushion, plate_pos, surface, dt,
+                    start, cross, sin, cos, quat,
+                )  # fmt: skip
+    else:
+        for i in range(n):
+            for k in range(e):
+                _drone_step(
+                    k, i, i if per_drone else 0, False, velocity, pos, vel, thrust_dir, motors_stopped, gain, turn,
+                    tan_tilt, thrust_min, thrust_max, inv_mass, drag, cushion, use_cushion, plate_pos, surface, dt,
+                    start, cross, sin, cos, quat,
+                )  # fmt: skip
+
+
+@jit_inline
+def _drone_step(
+    k: int,
+    i: int,
+    j: int,
+    family: bool,
+    velocity: np.ndarray,
+    pos: np.ndarray,
+    vel: np.ndarray,
+    thrust_dir: np.ndarray,
+    motors_stopped: np.ndarray,
+    gain: np.ndarray,
+    turn: np.ndarray,
+    tan_tilt: np.ndarray,
+    thrust_min: np.ndarray,
+    thrust_max: np.ndarray,
+    inv_mass: np.ndarray,
+    drag: np.ndarray,
+    cushion: np.ndarray,
+    use_cushion: bool,
+    plate_pos: np.ndarray,
+    surface: np.ndarray,
+    dt: float,
+    start: np.ndarray,
+    cross: np.ndarray,
+    sin: np.ndarray,
+    cos: np.ndarray,
+    quat: np.ndarray,
+) -> None:
+    """:func:`thrust_and_integrate` for drone ``i`` of env ``k`` (``j``: its index into per-env or per-drone
+    parameters). ``family`` is a constant of each call site, so each copy of the loop keeps only its own terms."""
+    u0, u1, u2 = velocity[k, i, 0], velocity[k, i, 1], velocity[k, i, 2]
+    v0, v1, v2 = vel[k, i, 0], vel[k, i, 1], vel[k, i, 2]
+    p0, p1, p2 = thrust_dir[k, i, 0], thrust_dir[k, i, 1], thrust_dir[k, i, 2]
+    t_min, t_max = thrust_min[k, j], thrust_max[k, j]
+    # _thrust: the wanted acceleration, the thrust vector for it within the tilt and thrust limits ...
+    w0 = (u0 - v0) * gain[k, j, 0]
+    w1 = (u1 - v1) * gain[k, j, 1]
+    w2 = (u2 - v2) * gain[k, j, 2] + GRAVITY
+    fz = _clip(w2, t_min, t_max)
+    horizontal = math.sqrt(w0 * w0 + w1 * w1)
+    shrink = _minimum(1.0, fz * tan_tilt[k, j] / _maximum(horizontal, 1e-12))
+    w0, w1, w2 = w0 * shrink, w1 * shrink, fz
+    norm = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+    # ... the axis turned part of the way towards it, and the thrust along that axis.
+    a0 = p0 + (w0 / norm - p0) * turn[k, j, 0]
+    a1 = p1 + (w1 / norm - p1) * turn[k, j, 0]
+    a2 = p2 + (w2 / norm - p2) * turn[k, j, 0]
+    norm = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+    a0, a1, a2 = a0 / norm, a1 / norm, a2 / norm
+    thrust = _clip(fz / _maximum(a2, 0.1), t_min, t_max)
+    f0, f1, f2 = a0 * thrust, a1 * thrust, a2 * thrust - GRAVITY
+    s0, s1, s2 = pos[k, i, 0], pos[k, i, 1], pos[k, i, 2]
+    if family:  # the nominal mass's acceleration scaled to the true mass, drag, ground cushion
+        m = inv_mass[k, i, 0]
+        f0, f1, f2 = f0 * m, f1 * m, (f2 + GRAVITY) * m - GRAVITY
+        d = drag[k, i, 0]
+        f0, f1, f2 = f0 - d * v0, f1 - d * v1, f2 - d * v2
+        # Computed for every drone and kept where the batch has a cushion: a select, not a branch (see above).
+        height = _maximum(s2 - _rest_height(s0, s1, plate_pos, k, surface[0], surface[1], surface[2], surface[3]), 0.0)
+        r = 0.04 / (0.04 + height)  # family.CUSHION_LENGTH
+        with_cushion = f2 + cushion[k, i] * GRAVITY * (r * r)
+        f2 = with_cushion if use_cushion else f2
+    if motors_stopped[k, i]:  # gravity alone, and the attitude stays
+        f0, f1, f2 = 0.0, 0.0, -GRAVITY
+        a0, a1, a2 = p0, p1, p2
     half_dt = 0.5 * dt
-    for i in range(n):
-        j = i if per_drone else 0
-        for k in range(e):
-            u0, u1, u2 = velocity[k, i, 0], velocity[k, i, 1], velocity[k, i, 2]
-            if family:  # the command arrives scaled and late: see PointMassSwarm._family_thrust
-                g = cmd_gain[k, i, 0]
-                c0, c1, c2 = u0 * g, u1 * g, u2 * g
-                late = _clip(latency[k, i, 0], 0.0, 1.0)
-                later = _clip(latency[k, i, 0] - 1.0, 0.0, 1.0)
-                o0 = (1.0 - later) * commands[0, k, i, 0] + later * commands[1, k, i, 0]
-                o1 = (1.0 - later) * commands[0, k, i, 1] + later * commands[1, k, i, 1]
-                o2 = (1.0 - later) * commands[0, k, i, 2] + later * commands[1, k, i, 2]
-                u0, u1, u2 = (1.0 - late) * c0 + late * o0, (1.0 - late) * c1 + late * o1, (1.0 - late) * c2 + late * o2
-                commands[1, k, i, 0], commands[1, k, i, 1] = commands[0, k, i, 0], commands[0, k, i, 1]
-                commands[1, k, i, 2] = commands[0, k, i, 2]
-                commands[0, k, i, 0], commands[0, k, i, 1], commands[0, k, i, 2] = c0, c1, c2
-            v0, v1, v2 = vel[k, i, 0], vel[k, i, 1], vel[k, i, 2]
-            p0, p1, p2 = thrust_dir[k, i, 0], thrust_dir[k, i, 1], thrust_dir[k, i, 2]
-            t_min, t_max = thrust_min[k, j], thrust_max[k, j]
-            # _thrust: the wanted acceleration, the thrust vector for it within the tilt and thrust limits ...
-            w0 = (u0 - v0) * gain[k, j, 0]
-            w1 = (u1 - v1) * gain[k, j, 1]
-            w2 = (u2 - v2) * gain[k, j, 2] + GRAVITY
-            fz = _clip(w2, t_min, t_max)
-            horizontal = math.sqrt(w0 * w0 + w1 * w1)
-            shrink = _minimum(1.0, fz * tan_tilt[k, j] / _maximum(horizontal, 1e-12))
-            w0, w1, w2 = w0 * shrink, w1 * shrink, fz
-            norm = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
-            # ... the axis turned part of the way towards it, and the thrust along that axis.
-            a0 = p0 + (w0 / norm - p0) * turn[k, j, 0]
-            a1 = p1 + (w1 / norm - p1) * turn[k, j, 0]
-            a2 = p2 + (w2 / norm - p2) * turn[k, j, 0]
-            norm = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
-            a0, a1, a2 = a0 / norm, a1 / norm, a2 / norm
-            thrust = _clip(fz / _maximum(a2, 0.1), t_min, t_max)
-            f0, f1, f2 = a0 * thrust, a1 * thrust, a2 * thrust - GRAVITY
-            if family:  # the nominal mass's acceleration scaled to the true mass, drag, ground cushion
-                m = inv_mass[k, i, 0]
-                f0, f1, f2 = f0 * m, f1 * m, (f2 + GRAVITY) * m - GRAVITY
-                d = drag[k, i, 0]
-                f0, f1, f2 = f0 - d * v0, f1 - d * v1, f2 - d * v2
-                if use_cushion:
-                    x, y, z = pos[k, i, 0], pos[k, i, 1], pos[k, i, 2]
-                    height = _maximum(z - _rest_height(x, y, plate_pos, k, half_x, half_y, lift, floor), 0.0)
-                    r = 0.04 / (0.04 + height)  # family.CUSHION_LENGTH
-                    f2 = f2 + cushion[k, i] * GRAVITY * (r * r)
-            if motors_stopped[k, i]:  # gravity alone, and the attitude stays
-                f0, f1, f2 = 0.0, 0.0, -GRAVITY
-                a0, a1, a2 = p0, p1, p2
-            for c, f in ((0, f0), (1, f1), (2, f2)):
-                start[k, i, c] = pos[k, i, c]
-                pos[k, i, c] = pos[k, i, c] + (vel[k, i, c] + half_dt * f) * dt
-                vel[k, i, c] = vel[k, i, c] + f * dt
-            # _set_attitude, up to the arctan2 that numpy computes between the two kernels.
-            x0, x1, x2 = p1 * a2 - p2 * a1, p2 * a0 - p0 * a2, p0 * a1 - p1 * a0
-            cross[k, i, 0], cross[k, i, 1], cross[k, i, 2] = x0, x1, x2
-            sin[k, i] = math.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
-            cos[k, i] = p0 * a0 + p1 * a1 + p2 * a2
-            scale = 1.0 / math.sqrt(2.0 * (1.0 + a2))
-            quat[k, i, 0], quat[k, i, 1], quat[k, i, 3] = -a1 * scale, a0 * scale, (1.0 + a2) * scale
-            thrust_dir[k, i, 0], thrust_dir[k, i, 1], thrust_dir[k, i, 2] = a0, a1, a2
+    start[k, i, 0], start[k, i, 1], start[k, i, 2] = s0, s1, s2
+    pos[k, i, 0] = s0 + (v0 + half_dt * f0) * dt
+    pos[k, i, 1] = s1 + (v1 + half_dt * f1) * dt
+    pos[k, i, 2] = s2 + (v2 + half_dt * f2) * dt
+    vel[k, i, 0] = v0 + f0 * dt
+    vel[k, i, 1] = v1 + f1 * dt
+    vel[k, i, 2] = v2 + f2 * dt
+    # _set_attitude, up to the arctan2 that numpy computes between the two kernels.
+    x0, x1, x2 = p1 * a2 - p2 * a1, p2 * a0 - p0 * a2, p0 * a1 - p1 * a0
+    cross[k, i, 0], cross[k, i, 1], cross[k, i, 2] = x0, x1, x2
+    sin[k, i] = math.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
+    cos[k, i] = p0 * a0 + p1 * a1 + p2 * a2
+    scale = 1.0 / math.sqrt(2.0 * (1.0 + a2))
+    quat[k, i, 0], quat[k, i, 1], quat[k, i, 3] = -a1 * scale, a0 * scale, (1.0 + a2) * scale
+    thrust_dir[k, i, 0], thrust_dir[k, i, 1], thrust_dir[k, i, 2] = a0, a1, a2
 
 
 @jit_kernel

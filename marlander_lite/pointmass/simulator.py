@@ -190,7 +190,13 @@ class PointMassSwarm:
         self.pos[env_ids] = task.sample_spawn_positions(
             rng, self._plate_pos[env_ids, 2], self.task, self._pads[env_ids]
         )
-        self._at_rest(env_ids)
+        if self.engine == "numba":
+            ids = np.asarray(env_ids, dtype=np.int64)
+            kernels.rest_envs(
+                ids, self.vel, self.ang_vel, self.quat, self._thrust_dir, self.landed, self.motors_stopped
+            )
+        else:
+            self._at_rest(env_ids)
         self.contact[env_ids] = task.CONTACT_NONE
 
     def step(self, velocity: np.ndarray) -> None:
@@ -318,22 +324,26 @@ class PointMassSwarm:
         self._sin, self._cos, self._angle = batch_zeros(e, n), batch_zeros(e, n), batch_zeros(e, n)
         self._surface_params = np.array([self._half_x, self._half_y, self._lift, self.task.landed_height], dtype=float)
         if self.family is None:  # never read: the kernel's family branch is off
-            self._inv_mass = self._drag = self._cmd_gain = self._latency = batch_zeros(1, 1, 1)
+            self._inv_mass = self._drag = batch_zeros(1, 1, 1)
             self._cushion = batch_zeros(1, 1)
-            self._commands = np.zeros((2, 1, 1, 3))
+        else:
+            self._acting = batch_zeros(e, n, 3)
 
     def _compiled_step(self, velocity: np.ndarray) -> None:
         """:meth:`step` through :mod:`~marlander_lite.pointmass.kernels`: the same operations, drone by drone."""
-        velocity = np.asarray(velocity, dtype=float)
+        # One memory layout for every caller: each layout is one more compile of the kernels (seconds each).
+        velocity = np.asfortranarray(velocity, dtype=float)
         if velocity.shape != self.pos.shape:  # the kernels do not check bounds
             raise ValueError(f"velocity must have shape {self.pos.shape} (num_envs, N, 3), got {velocity.shape}.")
         family = self.family is not None
+        if family:  # the command each drone acts on, late and scaled
+            kernels.delayed_commands(velocity, self._cmd_gain, self._latency, self._commands, self._acting)
+            velocity = self._acting
         kernels.thrust_and_integrate(
             velocity, self.pos, self.vel, self._thrust_dir, self.motors_stopped, self._gain, self._turn,
-            self._tan_tilt, self._thrust_min, self._thrust_max, family, self._cmd_gain, self._latency,
-            self._commands, self._inv_mass, self._drag, self._cushion, family and bool(self._cushion.any()),
-            self._plate_pos, self._surface_params, self._dt, self._start, self._cross, self._sin, self._cos,
-            self.quat,
+            self._tan_tilt, self._thrust_min, self._thrust_max, family, self._inv_mass, self._drag, self._cushion,
+            family and bool(self._cushion.any()), self._plate_pos, self._surface_params, self._dt, self._start,
+            self._cross, self._sin, self._cos, self.quat,
         )  # fmt: skip
         # numpy's arctan2 (SIMD on AVX-512) and libm's differ in the last bit: numpy's, as the reference.
         np.arctan2(self._sin, self._cos, out=self._angle)
