@@ -61,8 +61,10 @@ def executed_notebook(tmp_path_factory) -> Callable[[str], Path]:
                     client.execute(env={**os.environ, "MARLANDER_BUDGET": "small"})
                 except Exception as exc:  # CellExecutionError, a dead kernel, a timeout: all fail every reader
                     error.write_text(f"{type(exc).__name__}: {exc}", encoding="utf-8")
-                else:
-                    nbformat.write(nb, executed)
+                else:  # written whole, then renamed: an interrupted write leaves no half notebook for the next reader
+                    partial = folder / f"{name}.partial"
+                    nbformat.write(nb, partial)
+                    partial.replace(executed)
         if error.exists():
             pytest.fail(f"{name} failed with MARLANDER_BUDGET=small:\n{error.read_text(encoding='utf-8')}")
         return executed

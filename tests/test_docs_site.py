@@ -13,6 +13,7 @@ One test function builds once and checks everything, so that ``pytest -n 2`` nev
 from __future__ import annotations
 
 import base64
+import importlib.util
 import io
 import os
 import re
@@ -122,6 +123,29 @@ def test_the_link_check_finds_a_broken_link(tmp_path):
     (tmp_path / "b").mkdir()
     (tmp_path / "b" / "index.html").write_text('<a href="../a/index.html#x">a</a> <a href="/b/">b</a>')
     assert broken_links(tmp_path) == ["a/index.html -> ../img.png"]
+
+
+def test_the_site_hook_takes_executed_copies_only_when_every_notebook_has_one(tmp_path, monkeypatch):
+    pytest.importorskip("mkdocs", reason="the docs extra is not installed (pip install -r environment.lock)")
+    spec = importlib.util.spec_from_file_location("mkdocs_hooks", ROOT / "scripts" / "mkdocs_hooks.py")
+    hooks = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(hooks)
+    monkeypatch.delenv("MARLANDER_DOCS_NOTEBOOKS", raising=False)
+    assert hooks.executed_copies() is None  # the repository's notebooks, executed by mkdocs-jupyter
+    elsewhere = tmp_path / "executed"
+    elsewhere.mkdir()
+    monkeypatch.setenv("MARLANDER_DOCS_NOTEBOOKS", str(elsewhere))
+    with pytest.raises(ValueError, match="must be named 'notebooks'"):
+        hooks.executed_copies()
+    folder = tmp_path / "notebooks"
+    folder.mkdir()
+    for nb_path in NOTEBOOKS[1:]:
+        (folder / nb_path.name).write_text("{}")
+    monkeypatch.setenv("MARLANDER_DOCS_NOTEBOOKS", str(folder))
+    with pytest.raises(FileNotFoundError, match=re.escape(NOTEBOOKS[0].name)):
+        hooks.executed_copies()
+    (folder / NOTEBOOKS[0].name).write_text("{}")
+    assert hooks.executed_copies() == [folder / nb_path.name for nb_path in NOTEBOOKS]
 
 
 @pytest.mark.slow
