@@ -136,9 +136,12 @@ def fortran_state(s: SwarmState) -> SwarmState:
     """``s`` with every array in the point-mass layout (environment index fastest; ``contact`` as int8): the point
     mass's own arrays, not copied, and copies of other simulators' (one env each). The compiled MDP step then runs
     one machine-code version for every simulator; each other layout would be another compile of seconds."""
-    arrays = {name: np.asfortranarray(value) for name, value in vars(s).items()}
-    arrays["contact"] = np.asfortranarray(s.contact, dtype=np.int8)
-    return SwarmState(**arrays)
+    return SwarmState(
+        **{
+            name: np.asfortranarray(value, dtype=np.int8 if name == "contact" else None)
+            for name, value in vars(s).items()
+        }
+    )
 
 
 def uses_compiled_mdp(simulator: Simulator) -> bool:

@@ -10,7 +10,9 @@ reference's floating-point operations in the same order (no ``fastmath``), and `
 checks every output of seeded rollouts bit for bit against the numpy path. They apply on level plates; an inclined
 plate's pad-frame test stays in numpy.
 
-Arrays are ``(num_envs, N, ...)`` in any layout; the outputs are allocated by the caller.
+Arrays are ``(num_envs, N, ...)`` in any layout, though each layout compiles once more (seconds), so
+:class:`~marlander_lite.episodes.LandingEpisodes` passes one (``episodes.fortran_state``); the outputs are allocated
+by the caller.
 """
 
 from __future__ import annotations
