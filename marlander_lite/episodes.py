@@ -15,6 +15,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from marlander_lite import task, training_aids
+from marlander_lite.batch_layout import batch_full, batch_zeros
 from marlander_lite.observation_history import ObservationHistory
 from marlander_lite.platforms import PlatformConfig
 from marlander_lite.rotations import vector_norm
@@ -182,14 +183,14 @@ class LandingEpisodes:
         # A landed drone's centre rests landed_height above its pad along the pad normal: that is eq. 2's goal.
         self._goal_lift = self.task.landed_height * self.pad_normal
         self.steps = np.zeros(e, dtype=np.int64)
-        # Fortran order (env index fastest) matches the simulators' arrays; see pointmass.simulator.
-        self.landed = np.zeros((e, n), dtype=bool, order="F")
-        self.prev_dist = np.zeros((e, n), order="F")
-        self.landing_error = np.full((e, n), np.nan, order="F")
-        self.landing_time = np.full((e, n), np.nan, order="F")
+        # The simulators' layout (marlander_lite.batch_layout): Fortran order, each array at its own place in a page.
+        self.landed = batch_zeros(e, n, dtype=bool)
+        self.prev_dist = batch_zeros(e, n)
+        self.landing_error = batch_full((e, n), np.nan)
+        self.landing_time = batch_full((e, n), np.nan)
         self.min_separation = np.full(e, np.inf)
         self.episode_return = np.zeros(e)
-        self.previous_command = np.zeros((e, n, 3))
+        self.previous_command = batch_zeros(e, n, 3)
         """Last velocity commands ``(num_envs, N, 3)`` m/s, zero after a reset: observed with
         ``TaskConfig.observe_previous_command`` and compared by the smoothness training aid."""
         self.pad_acceleration = np.zeros((e, n, 3))

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from marlander_lite import task
+from marlander_lite import rotations, task
 from marlander_lite.envs.options import policy_input
 from marlander_lite.episodes import LandingEpisodes
 from marlander_lite.platforms import PlateGeometry, PlatformConfig
@@ -35,6 +35,25 @@ def test_min_separation_kernel_is_the_reference_to_the_last_bit(num_drones, orde
     np.testing.assert_allclose(reference, brute_force_min_separation(pos), rtol=1e-15)
     if num_drones > 1:
         assert reference[5] == 0.0
+
+
+def test_turn_rates_kernel_is_the_reference_to_the_last_bit():
+    """Axis turns of every size, right angles and beyond included (rollouts rarely reach them), and no turn at all."""
+    rng = np.random.default_rng(4)
+    before, after = (v / np.linalg.norm(v, axis=-1, keepdims=True) for v in rng.normal(size=(2, 301, 3, 3)))
+    after[0] = before[0]  # no turn: zero rate
+    after[1] = before[1] + 1e-9 * rng.normal(size=(3, 3))
+    cross = np.asfortranarray(np.cross(before, after))
+    sin, cos = np.asfortranarray(np.linalg.norm(cross, axis=-1)), np.asfortranarray((before * after).sum(axis=-1))
+    assert (cos < 0).any() and (cos > 0).any()
+    dt = 0.05
+    ang_vel = np.zeros((301, 3, 3), order="F")
+    kernels.turn_rates(cross, sin, cos, dt, ang_vel)
+    reference = cross * (rotations.turn_angle(sin, cos) / (np.maximum(sin, 1e-12) * dt))[..., None]
+    np.testing.assert_array_equal(ang_vel, reference)
+    np.testing.assert_array_equal(ang_vel[0], 0.0)
+    # The rate is the turn's angle over dt, about the turn's axis.
+    np.testing.assert_allclose(np.linalg.norm(ang_vel, axis=-1), np.arctan2(sin, cos) / dt, rtol=1e-14)
 
 
 def test_min_separation_kernel_propagates_nan_and_inf_like_numpy():

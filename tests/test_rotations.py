@@ -73,6 +73,24 @@ def test_angular_velocity_from_quats_is_the_turn_rate():
     np.testing.assert_allclose(got, omega, rtol=1e-3)  # omega itself, to second order: theta^2 / 24 < 1e-3
 
 
+def test_turn_angle_is_arctan2_to_four_units_in_the_last_place():
+    """Angles over [0, pi], tiny ones and ones near pi, from (sin, cos) pairs of any scale, against numpy's arctan2."""
+    rng = np.random.default_rng(3)
+    tiny = 10.0 ** rng.uniform(-12, 0, 100_000)
+    theta = np.concatenate([rng.uniform(0.0, np.pi, 200_000), tiny, np.pi - tiny])
+    scale = rng.uniform(0.5, 2.0, theta.size)
+    sin, cos = np.abs(np.sin(theta)) * scale, np.cos(theta) * scale
+    expected = np.arctan2(sin, cos)
+    got = rotations.turn_angle(sin, cos)
+    assert np.abs(got - expected).max() <= 4 * np.spacing(expected).max()
+    assert (np.abs(got - expected) <= 4 * np.spacing(expected)).all()
+    sin, cos = np.array([0.0, 0.0, 0.0, 1.0, 2.0, np.nan]), np.array([0.0, 1.0, -1.0, 0.0, -0.0, 1.0])
+    edges = rotations.turn_angle(sin, cos)
+    np.testing.assert_array_equal(edges[:3], [0.0, 0.0, math.pi])  # no turn, no turn, a reversal
+    np.testing.assert_allclose(edges[3:5], math.pi / 2, rtol=0, atol=4 * np.spacing(math.pi / 2))
+    assert np.isnan(edges[5])
+
+
 def test_tilt_is_the_angle_between_body_z_and_world_z(quats):
     body_z = Rotation.from_quat(quats.reshape(-1, 4)).apply([0.0, 0.0, 1.0])
     expected = np.degrees(np.arccos(body_z[:, 2])).reshape(quats.shape[:-1])

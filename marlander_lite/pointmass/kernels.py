@@ -11,9 +11,11 @@ What the kernels promise, and how:
 
 * **The same bits.** Each kernel repeats the reference's floating-point operations in the same order
   and on the same operands (no ``fastmath``, so no reassociation and no fused multiply-add); the
-  clip/maximum helpers below copy numpy's choice of operand, signed zeros included. The one function
-  whose numpy and libm results differ is ``arctan2`` (numpy uses SIMD code on AVX-512 machines), so the
-  step is split in two kernels with numpy's ``np.arctan2`` in between. ``tests/test_pointmass_kernels.py``
+  clip/maximum helpers below copy numpy's choice of operand, signed zeros included. The step's one angle is
+  :func:`marlander_lite.rotations.turn_angle`, written with square roots, divisions and products only, so that
+  both engines compute it alike (numpy's ``arctan2`` and libm's differ in the last bit on AVX-512 machines, and
+  neither vectorises in a compiled loop). The step is split in two kernels only because the plates move between
+  them. ``tests/test_pointmass_kernels.py``
   checks bit equality over seeded rollouts with resets, touchdowns, collisions, moving plates, stopped
   motors and dynamics-family draws.
 * **Vectorised.** The loops over environments run several drones at once in the vector registers (four
@@ -39,6 +41,8 @@ from collections.abc import Callable
 from typing import Any, Literal
 
 import numpy as np
+
+from marlander_lite.rotations import ARCTAN_SERIES
 
 try:  # numba is optional: without it the simulator runs the numpy reference
     import llvmlite.binding
@@ -118,6 +122,44 @@ def _maximum(a: float, b: float) -> float:
 def _minimum(a: float, b: float) -> float:
     """``np.minimum(a, b)``: NaN wins; on a tie numpy returns ``b``."""
     return a if (a < b or a != a) else b
+
+
+@jit_inline
+def _turn_angle(sin: float, cos: float) -> float:
+    """:func:`marlander_lite.rotations.turn_angle` for one angle: the same operations in the same order."""
+    r = math.sqrt(sin * sin + cos * cos)
+    denominator = r + abs(cos)
+    t = sin / (denominator if denominator > 0.0 else 1.0)
+    t = t / (1.0 + math.sqrt(1.0 + t * t))
+    angle = 4.0 * (t * _arctan_series(t * t))
+    return math.pi - angle if cos < 0.0 else angle
+
+
+@jit_inline
+def _arctan_series(z: float) -> float:
+    """Horner's rule on ``rotations.ARCTAN_SERIES`` at ``z``, written out: LLVM vectorises no loop over a tuple."""
+    c = ARCTAN_SERIES
+    series = c[19]
+    series = series * z + c[18]
+    series = series * z + c[17]
+    series = series * z + c[16]
+    series = series * z + c[15]
+    series = series * z + c[14]
+    series = series * z + c[13]
+    series = series * z + c[12]
+    series = series * z + c[11]
+    series = series * z + c[10]
+    series = series * z + c[9]
+    series = series * z + c[8]
+    series = series * z + c[7]
+    series = series * z + c[6]
+    series = series * z + c[5]
+    series = series * z + c[4]
+    series = series * z + c[3]
+    series = series * z + c[2]
+    series = series * z + c[1]
+    series = series * z + c[0]
+    return series
 
 
 # ---------------------------------------------------------------- eq. 6: closest pair
@@ -251,7 +293,7 @@ def thrust_and_integrate(
 ) -> None:
     """First half of ``PointMassSwarm.step`` for level plates: ``_thrust`` (or ``_family_thrust``, given the
     command :func:`delayed_commands` made act), stopped motors, the position and velocity update, and
-    ``_set_attitude`` up to its ``arctan2``.
+    ``_set_attitude`` up to the angle of the axis's turn.
 
     Updates ``pos``, ``vel``, ``thrust_dir`` and ``quat`` in place and writes ``start`` (positions before the step),
     ``cross`` (``d_prev x d``), ``sin`` (its norm) and ``cos`` (``d_prev . d``) for
@@ -353,7 +395,7 @@ def _drone_step(
     vel[k, i, 0] = v0 + f0 * dt
     vel[k, i, 1] = v1 + f1 * dt
     vel[k, i, 2] = v2 + f2 * dt
-    # _set_attitude, up to the arctan2 that numpy computes between the two kernels.
+    # _set_attitude, up to the angle of the axis's turn, which turn_rates computes in a loop of its own.
     x0, x1, x2 = p1 * a2 - p2 * a1, p2 * a0 - p0 * a2, p0 * a1 - p1 * a0
     cross[k, i, 0], cross[k, i, 1], cross[k, i, 2] = x0, x1, x2
     sin[k, i] = math.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
@@ -364,10 +406,22 @@ def _drone_step(
 
 
 @jit_kernel
-def attitude_rates_and_contacts(
-    angle: np.ndarray,
-    cross: np.ndarray,
-    sin: np.ndarray,
+def turn_rates(cross: np.ndarray, sin: np.ndarray, cos: np.ndarray, dt: float, ang_vel: np.ndarray) -> None:
+    """The rest of ``_set_attitude``: ``ang_vel`` ``(num_envs, N, 3)`` rad/s from the axis's turn over ``dt`` s
+    (``cross = d_prev x d``, ``sin`` its norm, ``cos = d_prev . d``, from :func:`thrust_and_integrate`).
+
+    A loop of its own: inside the long loop of :func:`thrust_and_integrate`, LLVM leaves :func:`_turn_angle` scalar,
+    four times slower (``benchmarks/bench_pointmass.py``).
+    """
+    for i in range(sin.shape[1]):
+        for k in range(sin.shape[0]):
+            rate = _turn_angle(sin[k, i], cos[k, i]) / (_maximum(sin[k, i], 1e-12) * dt)
+            for c in range(3):
+                ang_vel[k, i, c] = cross[k, i, c] * rate
+
+
+@jit_kernel
+def contacts_and_landed(
     start: np.ndarray,
     pos: np.ndarray,
     vel: np.ndarray,
@@ -382,10 +436,9 @@ def attitude_rates_and_contacts(
     landed_offset: np.ndarray,
     surface: np.ndarray,
     pad_radius_sq: float,
-    dt: float,
 ) -> None:
-    """Second half of ``PointMassSwarm.step`` for level plates, after the plates have moved: the angular
-    velocity from ``angle = arctan2(sin, cos)``, ``_resolve_contacts`` and ``_hold_landed``.
+    """Second half of ``PointMassSwarm.step`` for level plates, after the plates have moved: ``_resolve_contacts``
+    and ``_hold_landed``.
 
     Updates ``pos``, ``vel``, ``ang_vel``, ``quat`` and ``contact`` in place.
     """
@@ -393,9 +446,6 @@ def attitude_rates_and_contacts(
     half_x, half_y, lift, floor = surface[0], surface[1], surface[2], surface[3]
     for i in range(n):
         for k in range(e):
-            rate = angle[k, i] / (_maximum(sin[k, i], 1e-12) * dt)
-            for c in range(3):
-                ang_vel[k, i, c] = cross[k, i, c] * rate
             if landed[k, i]:  # _hold_landed: on the pad, moving with it, level; it touches nothing new
                 for c in range(3):
                     pos[k, i, c] = pads[k, i, c] + landed_offset[k, i, c]

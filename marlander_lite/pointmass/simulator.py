@@ -11,10 +11,11 @@ Speed note: every batched array is Fortran-ordered, so ``pos[..., 0]`` is one co
 plane and per-environment values broadcast over drones without short inner loops. Numpy keeps
 that layout through arithmetic; the row-major commands of :func:`marlander_lite.task.action_to_velocity`
 are copied into it once per step. The layout is a speed choice only: ``tests/test_task.py`` checks
-that it changes no bit of a flight or of an observation. See ``benchmarks/bench_pointmass.py``.
+that it changes no bit of a flight or of an observation. The arrays are made by :mod:`marlander_lite.batch_layout`,
+which also staggers where they start in memory. See ``benchmarks/bench_pointmass.py``.
 
 Engines: this numpy code is the reference. When numba is installed, :mod:`marlander_lite.pointmass.kernels`
-runs the same step as two compiled loops over the drones, bit for bit the same (``engine="numba"``, the
+runs the same step as compiled loops over the drones, bit for bit the same (``engine="numba"``, the
 default through ``"auto"``; inclined plates always use the reference).
 """
 
@@ -25,11 +26,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from marlander_lite import task
+from marlander_lite.batch_layout import batch_empty, batch_full, batch_zeros
 from marlander_lite.episodes import SwarmState
 from marlander_lite.platforms import PlatformConfig, PlatformMotion
 from marlander_lite.pointmass import kernels
 from marlander_lite.pointmass.family import CUSHION_LENGTH, DynamicsFamily
-from marlander_lite.rotations import IDENTITY_QUAT, vector_norm
+from marlander_lite.rotations import IDENTITY_QUAT, turn_angle, vector_norm
 from marlander_lite.task import TaskConfig
 
 GRAVITY = 9.81
@@ -105,11 +107,6 @@ class PointMassParams:
                 raise ValueError(f"Invalid PointMassParams: {message}; got {self!r}.")
 
 
-def batch_zeros(*shape: int) -> np.ndarray:
-    """Zeros in the engine's layout: Fortran order, the environment index varying fastest."""
-    return np.zeros(shape, order="F")
-
-
 class PointMassSwarm:
     """``num_envs`` swarms of point-mass drones over moving or static platforms.
 
@@ -143,12 +140,12 @@ class PointMassSwarm:
         self._dt = task_config.dt
         # Per-env response (arrays so that domain randomisation can vary them per episode).
         prm = self.params
-        self._gain = np.empty((e, 1, 3), order="F")
+        self._gain = batch_empty((e, 1, 3))
         self._gain[...] = 1.0 / np.array([prm.velocity_time_constant] * 2 + [prm.vertical_time_constant])
-        self._turn = np.full((e, 1, 1), 1.0 - np.exp(-self._dt / prm.attitude_time_constant))
-        self._tan_tilt = np.full((e, 1), np.tan(np.radians(prm.max_tilt_deg)))
-        self._thrust_max = np.full((e, 1), GRAVITY + prm.max_climb_acceleration)
-        self._thrust_min = np.full((e, 1), GRAVITY - prm.max_sink_acceleration)
+        self._turn = batch_full((e, 1, 1), 1.0 - np.exp(-self._dt / prm.attitude_time_constant))
+        self._tan_tilt = batch_full((e, 1), np.tan(np.radians(prm.max_tilt_deg)))
+        self._thrust_max = batch_full((e, 1), GRAVITY + prm.max_climb_acceleration)
+        self._thrust_min = batch_full((e, 1), GRAVITY - prm.max_sink_acceleration)
         self.family = prm.family
         if self.family is not None:
             self._init_family(e, n)
@@ -158,9 +155,9 @@ class PointMassSwarm:
         self.quat[..., 3] = 1.0
         self._thrust_dir = batch_zeros(e, n, 3)
         self._thrust_dir[..., 2] = 1.0
-        self.contact = batch_zeros(e, n).astype(np.int8, order="F")
-        self.landed = batch_zeros(e, n).astype(bool, order="F")
-        self.motors_stopped = batch_zeros(e, n).astype(bool, order="F")
+        self.contact = batch_zeros(e, n, dtype=np.int8)
+        self.landed = batch_zeros(e, n, dtype=bool)
+        self.motors_stopped = batch_zeros(e, n, dtype=bool)
         self._landed_offset = batch_zeros(e, n, 3)
         self._plate_pos, self._pads, self._pad_vel = batch_zeros(e, 3), batch_zeros(e, n, 3), batch_zeros(e, n, 3)
         self._update_platform()
@@ -319,9 +316,9 @@ class PointMassSwarm:
 
     # ------------------------------------------------------------------ compiled engine (kernels)
     def _init_kernels(self, e: int, n: int) -> None:
-        """Scratch arrays the two kernels hand each other, and stand-ins for the family's arrays without one."""
+        """Scratch arrays the kernels hand each other, and stand-ins for the family's arrays without one."""
         self._start, self._cross = batch_zeros(e, n, 3), batch_zeros(e, n, 3)
-        self._sin, self._cos, self._angle = batch_zeros(e, n), batch_zeros(e, n), batch_zeros(e, n)
+        self._sin, self._cos = batch_zeros(e, n), batch_zeros(e, n)
         self._surface_params = np.array([self._half_x, self._half_y, self._lift, self.task.landed_height], dtype=float)
         if self.family is None:  # never read: the kernel's family branch is off
             self._inv_mass = self._drag = batch_zeros(1, 1, 1)
@@ -345,15 +342,13 @@ class PointMassSwarm:
             family and bool(self._cushion.any()), self._plate_pos, self._surface_params, self._dt, self._start,
             self._cross, self._sin, self._cos, self.quat,
         )  # fmt: skip
-        # numpy's arctan2 (SIMD on AVX-512) and libm's differ in the last bit: numpy's, as the reference.
-        np.arctan2(self._sin, self._cos, out=self._angle)
+        kernels.turn_rates(self._cross, self._sin, self._cos, self._dt, self.ang_vel)
         self.time += self._dt
         if self.platform.is_moving:
             self._update_platform()
-        kernels.attitude_rates_and_contacts(
-            self._angle, self._cross, self._sin, self._start, self.pos, self.vel, self.ang_vel, self.quat,
-            self.contact, self.landed, self.motors_stopped, self._plate_pos, self._pads, self._pad_vel,
-            self._landed_offset, self._surface_params, self._pad_radius_sq, self._dt,
+        kernels.contacts_and_landed(
+            self._start, self.pos, self.vel, self.ang_vel, self.quat, self.contact, self.landed, self.motors_stopped,
+            self._plate_pos, self._pads, self._pad_vel, self._landed_offset, self._surface_params, self._pad_radius_sq,
         )  # fmt: skip
 
     # ------------------------------------------------------------------ robust training (DynamicsFamily)
@@ -369,12 +364,12 @@ class PointMassSwarm:
                 f"latency_s up to {highest_latency:.3f} s is more than two policy periods ({2 * self._dt:.3f} s), "
                 "which the point mass does not model; lower the latency range or policy_hz."
             )
-        self._gain = np.empty((e, n, 3), order="F")
-        self._turn = np.empty((e, n, 1), order="F")
-        self._tan_tilt, self._thrust_max, self._thrust_min = (np.empty((e, n), order="F") for _ in range(3))
-        self._inv_mass, self._drag, self._cmd_gain = (np.ones((e, n, 1), order="F") for _ in range(3))
-        self._cushion = np.zeros((e, n), order="F")
-        self._latency = np.zeros((e, n, 1), order="F")
+        self._gain = batch_empty((e, n, 3))
+        self._turn = batch_empty((e, n, 1))
+        self._tan_tilt, self._thrust_max, self._thrust_min = (batch_empty((e, n)) for _ in range(3))
+        self._inv_mass, self._drag, self._cmd_gain = (batch_full((e, n, 1), 1.0) for _ in range(3))
+        self._cushion = batch_zeros(e, n)
+        self._latency = batch_zeros(e, n, 1)
         """Latency in policy periods, in [0, 2]: the command history below holds two periods."""
         self._commands = np.zeros((2, e, n, 3))
         """The two previous velocity commands (after the gain error), newest first."""
@@ -429,14 +424,14 @@ class PointMassSwarm:
 
         The quaternion taking ``e_z`` to a unit vector ``d`` is ``(-d_y, d_x, 0, 1 + d_z)`` divided
         by ``sqrt(2 (1 + d_z))``. Over one step the axis turns from ``d_prev`` to ``d`` about
-        ``d_prev x d`` by ``atan2(|d_prev x d|, d_prev . d)``: that angle over ``dt`` is the
-        angular velocity.
+        ``d_prev x d`` by ``atan2(|d_prev x d|, d_prev . d)`` (:func:`~marlander_lite.rotations.turn_angle`): that
+        angle over ``dt`` is the angular velocity.
         """
         dx, dy, dz = axis[..., 0], axis[..., 1], axis[..., 2]
         px, py, pz = self._thrust_dir[..., 0], self._thrust_dir[..., 1], self._thrust_dir[..., 2]
         cx, cy, cz = py * dz - pz * dy, pz * dx - px * dz, px * dy - py * dx
         sin = np.sqrt(cx * cx + cy * cy + cz * cz)
-        rate = np.arctan2(sin, px * dx + py * dy + pz * dz) / (np.maximum(sin, 1e-12) * self._dt)
+        rate = turn_angle(sin, px * dx + py * dy + pz * dz) / (np.maximum(sin, 1e-12) * self._dt)
         self.ang_vel[..., 0] = cx * rate
         self.ang_vel[..., 1] = cy * rate
         self.ang_vel[..., 2] = cz * rate
