@@ -7,11 +7,11 @@ contiguous *plane* and the kernels' inner loops run down planes (``pointmass/ker
 Where each array starts matters too. A large array starts at the same place within a 4 KiB memory page as every other
 large array, and with 4096 environments each plane is 32 KiB long, a whole number of pages. The 30 or so planes that
 a kernel's loop reads and writes together then sit at the same offset within their pages, so that their elements at
-one environment index fall into the same set of the L1 cache, which holds 8 lines per set: most loads miss. The
-functions here start each new array 64 bytes (one cache line) further into its page than the one before, cycling
-through the 64 lines of a page, which spreads the planes of different arrays over the sets: the thrust kernel of the
-point mass ran 1.5x faster at 4096 x 2 drones (``benchmarks/bench_pointmass.py``). Values are never affected; only
-addresses.
+one environment index fall into the same set of the L1 cache, which holds 8 lines per set (32 KiB, 8 ways on the
+development VM's AMD EPYC, as on most x86 cores): most loads miss. The functions here start each new array 64 bytes
+(one cache line) further into its page than the one before, cycling through the 64 lines of a page, which spreads the
+planes of different arrays over the sets: the point mass's thrust kernel ran 1.5x faster at 4096 x 2 drones, the whole
+VecEnv step 1.12-1.18x (``docs/scaling.md``). Values are never affected; only addresses.
 
 This is for the arrays a simulator or an episode batch keeps for its lifetime: the C library hands out each large
 block at the start of fresh pages, so without this they all line up. Arrays made anew at every step come from

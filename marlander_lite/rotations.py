@@ -112,8 +112,8 @@ def turn_angle(sin: np.ndarray, cos: np.ndarray) -> np.ndarray:
     """``arctan2(sin, cos)`` for ``sin >= 0`` (an angle in ``[0, pi]``), from square roots, divisions and products only.
 
     The angle a thrust axis turns in one step (``PointMassSwarm._set_attitude``). Written out because numba has no
-    vectorised ``atan2`` and the C library's costs about 25 ns per call, more than the rest of a point-mass drone's
-    step. Built from correctly rounded operations alone, it gives the same bits in numpy and in a compiled loop
+    vectorised ``atan2`` and the C library's costs 18-29 ns per call, as much as the rest of a point-mass drone's
+    physics step. Built from correctly rounded operations alone, it gives the same bits in numpy and in a compiled loop
     (``pointmass/kernels.py``), and agrees with ``np.arctan2`` to 4 units in the last place
     (``tests/test_rotations.py``). The steps, exact in real arithmetic:
 

@@ -410,8 +410,8 @@ def turn_rates(cross: np.ndarray, sin: np.ndarray, cos: np.ndarray, dt: float, a
     """The rest of ``_set_attitude``: ``ang_vel`` ``(num_envs, N, 3)`` rad/s from the axis's turn over ``dt`` s
     (``cross = d_prev x d``, ``sin`` its norm, ``cos = d_prev . d``, from :func:`thrust_and_integrate`).
 
-    A loop of its own: inside the long loop of :func:`thrust_and_integrate`, LLVM leaves :func:`_turn_angle` scalar,
-    four times slower (``benchmarks/bench_pointmass.py``).
+    A loop of its own: inside the long loop of :func:`thrust_and_integrate`, LLVM left :func:`_turn_angle` scalar,
+    18 ns a drone against 6.7 ns here (``docs/scaling.md``).
     """
     for i in range(sin.shape[1]):
         for k in range(sin.shape[0]):
