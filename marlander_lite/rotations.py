@@ -129,12 +129,38 @@ def turn_angle(sin: np.ndarray, cos: np.ndarray) -> np.ndarray:
     denominator = r + np.abs(cos)
     t = sin / np.where(denominator > 0.0, denominator, 1.0)
     t = t / (1.0 + np.sqrt(1.0 + t * t))
-    z = t * t
-    series = ARCTAN_SERIES[-1]
-    for coefficient in ARCTAN_SERIES[-2::-1]:
-        series = series * z + coefficient
-    angle = 4.0 * (t * series)
+    angle = 4.0 * (t * arctan_series(t * t))
     return np.where(cos < 0.0, np.pi - angle, angle)
+
+
+def arctan_series(z: np.ndarray | float) -> np.ndarray | float:
+    """``atan(t) / t`` at ``z = t^2``: Horner's rule on :data:`ARCTAN_SERIES`, arrays or floats.
+
+    Written out term by term, because the compiled kernels inline this very function (``pointmass/kernels.py``) and
+    LLVM vectorises no loop over a tuple.
+    """
+    c = ARCTAN_SERIES
+    series = c[19]
+    series = series * z + c[18]
+    series = series * z + c[17]
+    series = series * z + c[16]
+    series = series * z + c[15]
+    series = series * z + c[14]
+    series = series * z + c[13]
+    series = series * z + c[12]
+    series = series * z + c[11]
+    series = series * z + c[10]
+    series = series * z + c[9]
+    series = series * z + c[8]
+    series = series * z + c[7]
+    series = series * z + c[6]
+    series = series * z + c[5]
+    series = series * z + c[4]
+    series = series * z + c[3]
+    series = series * z + c[2]
+    series = series * z + c[1]
+    series = series * z + c[0]
+    return series
 
 
 def tilt_deg(quat: np.ndarray) -> np.ndarray:

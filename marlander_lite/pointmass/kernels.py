@@ -42,7 +42,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from marlander_lite.rotations import ARCTAN_SERIES
+from marlander_lite.rotations import arctan_series
 
 try:  # numba is optional: without it the simulator runs the numpy reference
     import llvmlite.binding
@@ -124,6 +124,10 @@ def _minimum(a: float, b: float) -> float:
     return a if (a < b or a != a) else b
 
 
+_arctan_series = jit_inline(arctan_series)
+"""``rotations.arctan_series``, inlined into :func:`_turn_angle`."""
+
+
 @jit_inline
 def _turn_angle(sin: float, cos: float) -> float:
     """:func:`marlander_lite.rotations.turn_angle` for one angle: the same operations in the same order."""
@@ -133,33 +137,6 @@ def _turn_angle(sin: float, cos: float) -> float:
     t = t / (1.0 + math.sqrt(1.0 + t * t))
     angle = 4.0 * (t * _arctan_series(t * t))
     return math.pi - angle if cos < 0.0 else angle
-
-
-@jit_inline
-def _arctan_series(z: float) -> float:
-    """Horner's rule on ``rotations.ARCTAN_SERIES`` at ``z``, written out: LLVM vectorises no loop over a tuple."""
-    c = ARCTAN_SERIES
-    series = c[19]
-    series = series * z + c[18]
-    series = series * z + c[17]
-    series = series * z + c[16]
-    series = series * z + c[15]
-    series = series * z + c[14]
-    series = series * z + c[13]
-    series = series * z + c[12]
-    series = series * z + c[11]
-    series = series * z + c[10]
-    series = series * z + c[9]
-    series = series * z + c[8]
-    series = series * z + c[7]
-    series = series * z + c[6]
-    series = series * z + c[5]
-    series = series * z + c[4]
-    series = series * z + c[3]
-    series = series * z + c[2]
-    series = series * z + c[1]
-    series = series * z + c[0]
-    return series
 
 
 # ---------------------------------------------------------------- eq. 6: closest pair
