@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from marlander_lite.pad_assignment import PAD_ASSIGNMENTS, PadAssignment, assign_starts_to_pads
 from marlander_lite.rotations import vector_norm
 
 OBS_PER_DRONE = 13
@@ -104,6 +105,11 @@ class TaskConfig:
     """Training aid, not in the paper: this fraction of episodes starts with every drone within 0.3 m
     horizontally and ``spawn_near_pad_height_min``-1.0 m above its own pad, so landings are practised from the first
     update. 0 (the default, used for every evaluation) keeps the paper's uniform start."""
+    pad_assignment: PadAssignment = "fixed"
+    """Which drone lands on which pad: ``"fixed"`` (the paper) gives drone ``i`` pad ``i`` whatever its start;
+    ``"shortest"`` (not in the paper) hands each episode's random starts out so that the sum of squared
+    start-to-pad distances is least (CAPT's assignment, :mod:`marlander_lite.pad_assignment`), so that the
+    drones' paths cross far less often. Near-pad starts (a training aid) and relaunched drones keep their draw."""
     spawn_near_pad_height_min: float = 0.15
     """Lowest start above the pad of a near-pad start (m): lower puts drones a few centimetres up beside a pad that may
     be moving away, where a policy must learn to wait before it descends."""
@@ -237,6 +243,10 @@ class TaskConfig:
                 and not isinstance(self.observation_history, bool)
                 and 1 <= self.observation_history <= MAX_OBSERVATION_HISTORY,
                 f"observation_history must be an integer from 1 to {MAX_OBSERVATION_HISTORY} (frames)",
+            ),
+            (
+                self.pad_assignment in PAD_ASSIGNMENTS,
+                f"pad_assignment must be one of {', '.join(PAD_ASSIGNMENTS)}",
             ),
             (
                 0.0 < self.spawn_near_pad_height_min < 1.0,
@@ -427,6 +437,13 @@ def min_separation(pos: np.ndarray) -> np.ndarray:
     return min_separation_numpy(pos)
 
 
+def _paired(pos: np.ndarray, pads: np.ndarray, uniform: np.ndarray) -> np.ndarray:
+    """``pos`` with the starts of the ``uniform`` envs handed out to their drones by the shortest pairing."""
+    if uniform.any():
+        pos[uniform] = assign_starts_to_pads(pos[uniform], pads[uniform])
+    return pos
+
+
 def compiled_kernels() -> Any:
     """The compiled kernels' module, or None when numba is missing or ``MARLANDER_LITE_ENGINE=numpy`` is set now."""
     global _KERNELS
@@ -516,6 +533,7 @@ def sample_spawn_positions(
     config: TaskConfig,
     pads: np.ndarray | None = None,
     max_tries: int = 100,
+    pair_with_pads: bool = True,
 ) -> np.ndarray:
     """Random starting positions in the arena, ``(len(plate_top), N, 3)`` m (paper Sec. III-E).
 
@@ -523,7 +541,9 @@ def sample_spawn_positions(
     ``spawn_clearance`` above the plate top) and ``spawn_ceiling_margin`` below the ceiling.
     With ``spawn_near_pad_fraction`` > 0 (a training aid) that fraction of environments starts
     near the pads ``pads`` ``(k, N, 3)`` instead. Draws are repeated until every pair of drones
-    is ``spawn_separation`` apart. With the compiled engine on, :mod:`marlander_lite.pointmass.spawn_kernels` runs
+    is ``spawn_separation`` apart. With ``pad_assignment="shortest"`` (and ``pair_with_pads``) the uniform starts
+    of each env are then handed out to its drones by :func:`~marlander_lite.pad_assignment.assign_starts_to_pads`
+    (which needs ``pads``). With the compiled engine on, :mod:`marlander_lite.pointmass.spawn_kernels` runs
     this loop, drawing the same numbers from ``rng`` (a dozen rounds per reset at 16 drones).
     """
     n, w = len(plate_top), config.arena_half_width
@@ -536,6 +556,9 @@ def sample_spawn_positions(
     near_fraction = config.spawn_near_pad_fraction
     if near_fraction and pads is None:
         raise ValueError("spawn_near_pad_fraction > 0 needs the pad positions.")
+    pairs = pair_with_pads and config.pad_assignment == "shortest"
+    if pairs and pads is None:
+        raise ValueError('pad_assignment="shortest" needs the pad positions (pads).')
 
     # Each env's kind of start is drawn once, so that redraws for separation keep the fraction.
     near_pad = rng.random(n) < near_fraction if near_fraction else np.zeros(n, dtype=bool)
@@ -559,13 +582,13 @@ def sample_spawn_positions(
 
         pos = spawn_kernels.sample_spawn_positions(rng, z_lo, z_hi, near_pad, pads, config, max_tries)
         if pos is not None:
-            return pos
+            return _paired(pos, pads, ~near_pad) if pairs else pos
     else:
         pos = draw(np.arange(n))
         for _ in range(max_tries):
             redo = np.flatnonzero(min_separation(pos) < config.spawn_separation)
             if len(redo) == 0:
-                return pos
+                return _paired(pos, pads, ~near_pad) if pairs else pos
             pos[redo] = draw(redo)
     raise ValueError(
         f"Could not place {config.num_drones} drones {config.spawn_separation} m apart in the arena after "

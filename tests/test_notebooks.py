@@ -674,6 +674,28 @@ def check_09(shown: Shown) -> None:
     assert close(limit, 0.62, 0.001)
     [(closest,)] = shown.numbers(r"closest approach (\S+) m")
     assert closest >= 0.185
+    # Pairing starts with pads: the straight paths of 8 random starts cross far less often, and the shipped
+    # shared-quick-paired table shows the policy alone at the N = 8 target with the pairing, and colliding without it.
+    [(fixed_crossings, paired_crossings)] = shown.numbers(
+        r"mean crossings per swarm of 8 over 1000 draws: fixed (\S+), shortest (\S+)"
+    )
+    assert fixed_crossings > 5 * paired_crossings
+    for label in ("shared-quick-drone-ends", "shared-quick-paired"):
+        for pairing in ("fixed", "shortest"):
+            assert f"**{label}, {pairing} pairing**" in shown_tables
+    paired_table, fixed_table = (
+        {
+            (row["controller"], row["N"]): row
+            for row in markdown_rows(shown_tables.split(f"**{stem}**", 1)[1].split("**", 1)[0])
+        }
+        for stem in ("scaling_paired", "scaling_paired_fixed_pairs")
+    )
+    alone, unpaired = paired_table[("shared", "8")], fixed_table[("shared", "8")]
+    assert first_number(alone["success % [95 % CI]"]) >= 95.0 > first_number(unpaired["success % [95 % CI]"])
+    assert first_number(alone["landing error cm [95 % CI]"]) <= 2.26
+    assert first_number(unpaired["collisions % [95 % CI]"]) > 10 * first_number(alone["collisions % [95 % CI]"])
+    for stem in ("crazyflie_firmware_paired", "crazyflie_pid_paired", "crazyflie_held_out_paired"):
+        assert f"**{stem}**" in shown_tables
     # The two engines of the point-mass swarm fly the same random actions to the same bits, and the benchmark's
     # latest figures are shown beside the live timing.
     assert "swarms x 16 drones, 7 steps: the same bits on both engines: True" in shown.text

@@ -419,6 +419,29 @@ def test_bad_shared_training_configs_are_refused():
     assert preset.swarms_per_size == (160, 80, 53, 40)
 
 
+@pytest.mark.parametrize(
+    ("run", "preset", "continues"),
+    [
+        ("shared-quick-paired-stage4", "shared-quick-paired", "shared-quick-drone-ends"),
+        ("shared-quick-paired", "shared-quick-paired-soft", "shared-quick-paired-stage4"),
+    ],
+)
+def test_shipped_paired_runs_are_their_presets(run, preset, continues):
+    """Each stage's recorded config is its preset as it is now (the stage it continues aside), and the shipped
+    ``shared-quick-paired`` policy is the last stage's export."""
+    import json
+
+    record = json.loads((ROOT / "data/runs" / run / "config.json").read_text())
+    trained = SharedTrainConfig.from_dict(record["train"])
+    assert trained == SHARED_PRESETS[preset].replace(init_from=trained.init_from)
+    assert record["task"]["pad_assignment"] == "shortest"
+    assert (ROOT / "data/runs" / continues / "model.zip").is_file()
+    assert (ROOT / "data/runs" / run / "model.zip").is_file()
+    if run == "shared-quick-paired":
+        shipped = (ROOT / "data/policies/shared-quick-paired.safetensors").read_bytes()
+        assert shipped == (ROOT / "data/runs" / run / "policy.safetensors").read_bytes()
+
+
 # ---------------------------------------------------------------------------- shipping and flying
 
 
@@ -491,6 +514,21 @@ def test_swarm_evaluate_flies_the_held_out_tracker_and_says_so(lander_file, tmp_
     assert main([*args, "--simulator", "crazyflie", "--held-out", "--out", str(tmp_path), "--stem", "held"]) == 0
     table = (tmp_path / "held.md").read_text()
     assert table.startswith("crazyflie (held-out tracker), ") and "--held-out" in table
+
+
+def test_swarm_evaluate_pairs_starts_with_pads_when_asked_and_says_so(lander_file, tmp_path):
+    from marlander_lite.cli import main
+
+    args = ["swarm", "evaluate", "--shared", str(lander_file), "--sizes", "3", "--trials", "2", "--num-envs", "2"]
+    assert main([*args, "--pad-assignment", "shortest", "--out", str(tmp_path), "--stem", "paired"]) == 0
+    table = (tmp_path / "paired.md").read_text()
+    assert "random starts paired with the pads by the shortest pairing" in table
+    assert "--pad-assignment shortest" in table
+    assert main([*args, "--out", str(tmp_path), "--stem", "fixed"]) == 0
+    table = (tmp_path / "fixed.md").read_text()
+    assert "the paper's random starts," in table and "--pad-assignment" not in table
+    with pytest.raises(SystemExit):
+        main([*args, "--pad-assignment", "nearest", "--out", str(tmp_path / "bad")])
 
 
 # ---------------------------------------------------------------------------- learning

@@ -268,7 +268,9 @@ class PointMassSwarm:
         for attempt in range(tries):
             if not pending.size:
                 break
-            draw = task.sample_spawn_positions(rng, self._plate_pos[pending, 2], self.task, self._pads[pending])
+            draw = task.sample_spawn_positions(
+                rng, self._plate_pos[pending, 2], self.task, self._pads[pending], pair_with_pads=False
+            )
             mask = drones[pending]
             candidate = np.where(mask[..., None], draw, self.pos[pending])
             nearest_sq = np.where(mask, pairwise_offsets(candidate)[1].min(axis=-1), np.inf).min(axis=-1)

@@ -41,6 +41,7 @@ from marlander_lite.experiments import apf
 from marlander_lite.experiments.apf import APFConfig
 from marlander_lite.experiments.controllers import PIDAPFController
 from marlander_lite.experiments.metrics import CellSummary, TrialMetrics, summarise, wilson_interval
+from marlander_lite.pad_assignment import PAD_ASSIGNMENTS
 from marlander_lite.platforms import PlateGeometry, PlatformConfig
 from marlander_lite.policy_file import load_policy, read_contract
 from marlander_lite.sensing import SensingConfig
@@ -378,6 +379,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--platform", default="static-floor", help="platform kind (marlander_lite.platforms)")
     parser.add_argument("--speeds", type=float, nargs="+", default=[None], help="tool speeds of a moving platform")
     parser.add_argument("--inclinations", type=float, nargs="+", default=[0.0], help="plate tilts (degrees)")
+    parser.add_argument(
+        "--pad-assignment",
+        default="fixed",
+        choices=PAD_ASSIGNMENTS,
+        help="fixed: drone i lands on pad i (the paper); shortest: each trial's starts are paired with the pads by "
+        "least total squared distance (CAPT's assignment, marlander_lite.pad_assignment)",
+    )
     parser.add_argument("--force", action="store_true", help="overwrite STEM.csv/.json/.md already in --out")
 
 
@@ -397,7 +405,8 @@ def command_line(args: argparse.Namespace, program: str = "marlander swarm evalu
     parts = [program]
     for dest in (action.dest for action in parser._actions if action.dest != "force"):
         value = getattr(args, dest)
-        if value is None or value is False or value == [None]:
+        unset = value is None or value is False or value == [None]
+        if unset or (dest == "pad_assignment" and value == "fixed"):  # the paper's pairing: the old tables' command
             continue
         flag = "--" + dest.replace("_", "-")
         values = value if isinstance(value, list) else [] if value is True else [value]
@@ -441,16 +450,20 @@ def run(args: argparse.Namespace, program: str = "marlander swarm evaluate") -> 
                     cells.append(("centralised-filter", n, args.centralised, platform))
             if args.baseline:
                 cells.append(("baseline", n, None, platform))
+    pairing = getattr(args, "pad_assignment", "fixed")
     rows = []
     for controller, n, path, platform in cells:
         row = evaluate_cell(
             controller, n, args.trials, args.seed, path, args.num_envs, args.simulator, platform,
-            simulator_options=options, filter_settings=settings,
+            task_changes={"pad_assignment": pairing}, simulator_options=options, filter_settings=settings,
         )  # fmt: skip
         print(_cell_text(row), f"({row.seconds:.0f} s)", flush=True)
         rows.append(row)
+    starts = "the paper's random starts"
+    if pairing == "shortest":
+        starts += " paired with the pads by the shortest pairing"
     note = (
-        f"{args.simulator}{tracker}, Vicon sensing, the paper's random starts, "
+        f"{args.simulator}{tracker}, Vicon sensing, {starts}, "
         f"{args.trials} trials per cell, seed {args.seed}, 30 s limit: `{command_line(args, program)}`."
     )
     if args.shared_filter or args.centralised_filter:
