@@ -22,7 +22,6 @@ from __future__ import annotations
 from typing import Literal
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 PadAssignment = Literal["fixed", "shortest"]
 """``"fixed"``: drone ``i`` lands on pad ``i`` (the paper); ``"shortest"``: the pairing of least total squared
@@ -41,6 +40,10 @@ def shortest_pairing(starts: np.ndarray, pads: np.ndarray) -> np.ndarray:
         raise ValueError(f"starts and pads must both be (N, 3) arrays, got shapes {starts.shape} and {pads.shape}.")
     if not (np.isfinite(starts).all() and np.isfinite(pads).all()):
         raise ValueError("starts and pads must be finite positions (m); got NaN or inf.")
+    # Imported here, not at the top: scipy.optimize loads pybind11 extensions, and a Ctrl-C while they load during
+    # the marlander command's start-up aborts the process instead of printing "Interrupted." (test_deploy_cli_startup).
+    from scipy.optimize import linear_sum_assignment
+
     cost = ((pads[:, None, :] - starts[None, :, :]) ** 2).sum(axis=-1)  # cost[pad, start]
     _, order = linear_sum_assignment(cost)
     return order
