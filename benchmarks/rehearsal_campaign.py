@@ -14,6 +14,9 @@ Run::
     python benchmarks/rehearsal_campaign.py --config marlander_lite/deploy/example_lab_8.yaml \\
         --policy data/policies/shared-quick-local.safetensors --seeds 0-19 [--simulator rotorpy] [--controller pid]
 
+``--pad-assignment shortest`` hands the pads out at take-off by the shortest pairing (the config's
+``pad_assignment``), as a policy trained so (``shared-quick-paired``) expects.
+
 The config's simulation platform, its take-off height and its safety filter can be changed on the command line, e.g.
 the plate shuttling along a line at 0.4 m/s with the lab guide's moving-pad settings::
 
@@ -32,6 +35,7 @@ import numpy as np
 
 from marlander_lite.deploy.config import load_lab_config
 from marlander_lite.deploy.rehearsal.run import rehearse
+from marlander_lite.pad_assignment import PAD_ASSIGNMENTS
 from marlander_lite.simulators import SIMULATORS
 from marlander_lite.swarm.safety_filter import parse_settings
 
@@ -52,6 +56,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--platform", default=None, help="simulation.platform instead of the config's")
     parser.add_argument("--platform-speed", type=float, default=None, help="simulation.platform_speed (m/s)")
     parser.add_argument("--takeoff-height", type=float, default=None, help="limits.takeoff_height (m)")
+    parser.add_argument("--no-filter", action="store_true", help="fly without the safety filter (the policy alone)")
+    parser.add_argument(
+        "--pad-assignment", default=None, choices=PAD_ASSIGNMENTS, help="pad_assignment instead of the config's"
+    )
     parser.add_argument(
         "--filter-settings", default="", metavar="KEY=VALUE,...", help="safety_filter keys instead of the config's"
     )
@@ -66,6 +74,10 @@ def main(argv: list[str] | None = None) -> None:
         simulation=dataclasses.replace(lab.simulation, **{k: v for k, v in simulation.items() if v is not None}),
         safety_filter=safety_filter,
     )
+    if args.no_filter:
+        lab = lab.replace(safety_filter=dataclasses.replace(lab.safety_filter, enabled=False))
+    if args.pad_assignment is not None:
+        lab = lab.replace(pad_assignment=args.pad_assignment)
     if args.takeoff_height is not None:
         lab = lab.replace(limits=dataclasses.replace(lab.limits, takeoff_height=args.takeoff_height))
     on_pad = all_down = safe = 0

@@ -38,7 +38,12 @@ EXPECTED_TEXT = {
     "04_static_platform.ipynb": ["budget: small"],
     "05_moving_platform.ipynb": ["budget: small"],
     "06_baselines.ipynb": ["budget: small"],
-    "07_deployment_rehearsal.ipynb": ["budget: small", "fault none: armed=True, on pad=[True, True]"],
+    "07_deployment_rehearsal.ipynb": [
+        "budget: small",
+        "fault none: armed=True, on pad=[True, True]",
+        "Pads paired with the drones by the shortest paths: cf1 -> ",
+        "on their pads: 8 of 8; safe: True",
+    ],
     "08_transfer.ipynb": ["budget: small", "### quick-cpu", "| floor | "],
     "09_scaling.ipynb": ["budget: small", "| shared | static-floor | 16 |", "| shared-filter | static-floor | 16 |"],
 }
@@ -696,6 +701,14 @@ def check_09(shown: Shown) -> None:
     assert first_number(unpaired["collisions % [95 % CI]"]) > 10 * first_number(alone["collisions % [95 % CI]"])
     for stem in ("crazyflie_firmware_paired", "crazyflie_pid_paired", "crazyflie_held_out_paired"):
         assert f"**{stem}**" in shown_tables
+    # The lab loop pairs the drones with pads at take-off: the 8-drone rehearsal swaps some pads and lands every drone
+    # on the one it was given, within the pad radius by the simulator's truth.
+    [line] = re.findall(r"Pads paired with the drones by the shortest paths: (.*)\.", shown.text)
+    assert line.count(" -> ") == 8 and line.count("(as configured)") < 8, line
+    [(landed, gap)] = shown.numbers(
+        r"on their paired pads: (\d+) of 8 \(simulator truth: largest distance from the pad centre (\S+) cm\)"
+    )
+    assert landed == 8 and gap < 10.0
     # The two engines of the point-mass swarm fly the same random actions to the same bits, and the benchmark's
     # latest figures are shown beside the live timing.
     assert "swarms x 16 drones, 7 steps: the same bits on both engines: True" in shown.text

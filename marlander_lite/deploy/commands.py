@@ -33,6 +33,7 @@ from typing import Any, TextIO
 from marlander_lite.deploy.config import SIMULATOR_KINDS, LabConfig, current_simulator_name, load_lab_config
 from marlander_lite.deploy.interrupts import FLIGHT_SIGNALS, exit_code, terminate_as_interrupt
 from marlander_lite.deploy.link import LinkError
+from marlander_lite.deploy.pairing import PairingError
 from marlander_lite.deploy.rehearsal.faults import FAULT_KINDS, FaultSpec
 from marlander_lite.deploy.rehearsal.world import SimulatorUnavailable
 
@@ -141,7 +142,7 @@ def run_deploy(args: argparse.Namespace) -> int:
     with terminate_as_interrupt():  # outside the flight, SIGTERM/SIGHUP unwind like Ctrl-C: links closed, temp removed
         try:
             ok, interrupted = _rehearse(lab, args, log_path, fault) if args.sim else _fly(lab, args, log_path)
-        except (TimeoutError, ConnectionError, LinkError, SimulatorUnavailable) as error:
+        except (TimeoutError, ConnectionError, LinkError, SimulatorUnavailable, PairingError) as error:
             print(f"marlander deploy: error: {error}", file=sys.stderr)
             return 2
         except KeyboardInterrupt as stop:  # a signal outside the flight (connecting, settling, closing)
@@ -247,6 +248,10 @@ def _rehearse(
         log_path=log_path,
         overwrite_log=args.force,
     )
+    if lab.pad_assignment == "shortest":
+        from marlander_lite.deploy.pairing import pairing_line
+
+        _say(pairing_line(lab, result.pads))
     _say(result.summary())
     if result.fault_missed:
         _say(
@@ -273,6 +278,12 @@ def _fly(lab: LabConfig, args: argparse.Namespace, log_path: Path) -> tuple[bool
         link.open()
         if not args.yes:  # run_deploy refused this without a terminal
             input("Ready. Press Enter to run the pre-flight check and take off (Ctrl-C to cancel). ")
+        if lab.pad_assignment == "shortest":  # the drones rest where they will take off: hand the pads out again
+            from marlander_lite.deploy.pairing import pair_drones_with_pads, pairing_line, resting_positions
+
+            paired = pair_drones_with_pads(lab, *resting_positions(lab, source, RealClock()))
+            print(pairing_line(lab, [d.pad for d in paired.drones]))
+            lab = paired
         log = FlightLogWriter(log_path, flight_header(lab, policy, source=lab.mocap.kind))
         mission = Mission(lab, policy, source, link, RealClock(), log=log)
         watcher = KeyWatcher(mission)

@@ -54,6 +54,7 @@ from marlander_lite.deploy.sections import (
     SimulatorKind,
     current_simulator_name,
 )
+from marlander_lite.pad_assignment import PadAssignment
 from marlander_lite.platforms import PlateGeometry
 from marlander_lite.policy_file import MLPPolicy, PolicyFileError, load_policy, read_contract
 from marlander_lite.task import TaskConfig
@@ -106,6 +107,11 @@ class LabConfig:
     simulation: SimulationConfig = field(default_factory=SimulationConfig)
     log_dir: Annotated[Text, Field(min_length=1, max_length=4096)] = "flight_logs"
     """Folder for flight logs (relative to the working directory)."""
+    pad_assignment: PadAssignment = "fixed"
+    """Which drone lands on which pad. ``fixed``: the pad each drone's entry names (the paper). ``shortest``: just
+    before the pre-flight check the drones' pads are handed out again by the pairing of least total squared
+    distance from where they rest to the pads, seen from above (CAPT's assignment, :mod:`.pairing`); fly it with a
+    policy trained so (``shared-quick-paired``). The flight log header records the pairing flown."""
 
     def __post_init__(self) -> None:
         check(len(self.drones) >= 1, "drones: list at least one drone (name, uri, pad).")

@@ -129,6 +129,6 @@ class FaultInjector:
             centre = (np.array(low[:2]) + np.array(high[:2])) / 2
             away = pos - centre if np.linalg.norm(pos - centre) > 1e-6 else np.array([1.0, 0.0])
             velocity = np.array([*(away / np.linalg.norm(away)), 0.0]) * mission.lab.limits.max_speed
-            self.world.run_away(spec.drone, velocity)
+            self.world.run_away(self.world.index(name), velocity)  # the world may order its drones otherwise
             what = f"{name} flies {np.round(velocity, 2).tolist()} m/s whatever it is told, until the soft fence"
         mission.event("fault_injected", f"{spec.kind}: {what}", spec.drone)

@@ -6,10 +6,16 @@ swarm or the point-mass swarm), a :class:`SimulatedPoseSource` reading it, the r
 same :class:`Mission` as ``marlander deploy`` on hardware. Afterwards the world runs a few more
 seconds with no commands (so a drone left to its firmware comes down), and the result says
 where every drone ended up, checked against the simulator's ground truth.
+
+With ``pad_assignment: shortest`` the drones are paired with pads as on hardware, from the simulated motion
+capture's view of them at rest (:mod:`marlander_lite.deploy.pairing`). The simulators give drone ``k`` pad ``k``,
+so the world is then built again from the same starts with its drones listed in the order of the pads they were
+given; the result lists everything in the config's drone order.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,6 +27,7 @@ from marlander_lite.deploy.config import LabConfig, current_simulator_name, load
 from marlander_lite.deploy.flight_log import FlightLogWriter, flight_header
 from marlander_lite.deploy.link import CrazyflieLink
 from marlander_lite.deploy.mission import Mission
+from marlander_lite.deploy.pairing import pair_drones_with_pads, resting_positions
 from marlander_lite.deploy.rehearsal.faults import FaultInjector, FaultSpec
 from marlander_lite.deploy.rehearsal.mocap import SimulatedPoseSource
 from marlander_lite.deploy.rehearsal.world import SimulatedWorld, make_simulator
@@ -52,6 +59,8 @@ class RehearsalResult:
     """Smallest distance between two drones during the flight (m)."""
     fence_excess: np.ndarray
     """How far each drone went outside the hard geofence at any physics step ``(N,)`` m; 0: never left it."""
+    pads: list[str] = field(default_factory=list)
+    """The pad each drone flew to, drone order (the config's, or the pairing's with ``pad_assignment: shortest``)."""
     firmware_events: list[tuple[str, float, str, str]] = field(default_factory=list)
     """(drone, time, kind, message) from the virtual firmwares."""
     fault_time: float | None = None
@@ -140,7 +149,69 @@ def rehearse(
     if fault is not None:
         fault.check(lab.num_drones, fault_time_limit(lab))
     world = SimulatedWorld(lab, make_simulator(lab, kind, controller=controller), seed=seed)
-    source = SimulatedPoseSource(
+    source = _pose_source(world, seed)
+    flown = lab
+    if lab.pad_assignment == "shortest":
+        try:
+            flown = pair_drones_with_pads(lab, *resting_positions(lab, source, world))
+        finally:
+            world.close()
+        # drone k of the simulators lands on pad k: list the drones in the order of the config's pads they now have
+        by_pad = {d.pad: d for d in flown.drones}
+        world_lab = dataclasses.replace(flown, drones=tuple(by_pad[d.pad] for d in lab.drones))
+        starts = world.start_positions[[lab.drone_names.index(name) for name in world_lab.drone_names]]
+        world = SimulatedWorld(
+            world_lab, make_simulator(world_lab, kind, controller=controller), seed=seed, starts=starts
+        )
+        source = _pose_source(world, seed)
+    all_hooks: list[Any] = [_FirmwareEvents(world), _TimeLimit(sim_cfg.max_time_s)]
+    injector = None if fault is None else FaultInjector(fault, world, source)
+    if injector is not None:
+        all_hooks.append(injector)
+    all_hooks += hooks
+    link = CrazyflieLink([d.uri for d in flown.drones], flown.crazyflie, factory=world.factory)
+    try:
+        log = None
+        if log_path is not None:
+            header = flight_header(
+                flown,
+                policy,
+                source="simulation",
+                simulator=kind,
+                seed=seed,
+                fault=None if fault is None else fault.kind,
+            )
+            log = FlightLogWriter(log_path, header, overwrite=overwrite_log)
+        link.open()
+        result = Mission(flown, policy, source, link, clock=world, log=log, hooks=all_hooks).run()
+        world.sleep_until(world.time + settle_s)
+    finally:
+        link.close()
+        world.close()
+    order = [world.index(name) for name in lab.drone_names]  # the world's drone of each config drone
+    pos = world.drone_positions()[order]
+    return RehearsalResult(
+        mission=result,
+        fault=None if fault is None else fault.kind,
+        simulator=kind,
+        final_positions=pos,
+        final_speeds=world.drone_speeds()[order],
+        motors_on=world.motors_on[order],
+        pad_positions=world.pad_positions()[order],
+        inside_fence=np.array([lab.geofence.contains(p) for p in pos]),
+        riding=world.pad_landed[order],
+        min_separation=world.min_separation,
+        fence_excess=world.fence_excess[order],
+        pads=[d.pad for d in flown.drones],
+        firmware_events=[(fw.name, t, k, m) for fw in world.firmwares.values() for t, k, m in fw.events],
+        fault_time=None if injector is None else injector.started_at,
+    )
+
+
+def _pose_source(world: SimulatedWorld, seed: int) -> SimulatedPoseSource:
+    """The simulated motion capture of ``world``, with its lab's ``simulation`` noise, latency and losses."""
+    sim_cfg = world.lab.simulation
+    return SimulatedPoseSource(
         world,
         pos_noise_std=sim_cfg.pos_noise_std,
         quat_noise_std=sim_cfg.quat_noise_std,
@@ -148,41 +219,6 @@ def rehearse(
         drop_rate=sim_cfg.drop_rate,
         occlusion_rate=sim_cfg.occlusion_rate,
         seed=seed,
-    )
-    all_hooks: list[Any] = [_FirmwareEvents(world), _TimeLimit(sim_cfg.max_time_s)]
-    injector = None if fault is None else FaultInjector(fault, world, source)
-    if injector is not None:
-        all_hooks.append(injector)
-    all_hooks += hooks
-    link = CrazyflieLink([d.uri for d in lab.drones], lab.crazyflie, factory=world.factory)
-    try:
-        log = None
-        if log_path is not None:
-            header = flight_header(
-                lab, policy, source="simulation", simulator=kind, seed=seed, fault=None if fault is None else fault.kind
-            )
-            log = FlightLogWriter(log_path, header, overwrite=overwrite_log)
-        link.open()
-        result = Mission(lab, policy, source, link, clock=world, log=log, hooks=all_hooks).run()
-        world.sleep_until(world.time + settle_s)
-    finally:
-        link.close()
-        world.close()
-    pos = world.drone_positions()
-    return RehearsalResult(
-        mission=result,
-        fault=None if fault is None else fault.kind,
-        simulator=kind,
-        final_positions=pos,
-        final_speeds=world.drone_speeds(),
-        motors_on=world.motors_on.copy(),
-        pad_positions=world.pad_positions(),
-        inside_fence=np.array([lab.geofence.contains(p) for p in pos]),
-        riding=world.pad_landed.copy(),
-        min_separation=world.min_separation,
-        fence_excess=world.fence_excess.copy(),
-        firmware_events=[(fw.name, t, k, m) for fw in world.firmwares.values() for t, k, m in fw.events],
-        fault_time=None if injector is None else injector.started_at,
     )
 
 
@@ -200,10 +236,10 @@ class _FirmwareEvents:
         self.seen = {uri: 0 for uri in world.firmwares}
 
     def __call__(self, mission: Mission, t: float) -> None:
-        for i, (uri, fw) in enumerate(self.world.firmwares.items()):
+        for uri, fw in self.world.firmwares.items():
             for _, kind, message in fw.events[self.seen[uri] :]:
                 if kind in ("watchdog", "ignored", "refused", "unsupported", "locked"):
-                    mission.event("firmware", f"{fw.name} firmware: {message}", i)
+                    mission.event("firmware", f"{fw.name} firmware: {message}", mission.names.index(fw.name))
             self.seen[uri] = len(fw.events)
 
 

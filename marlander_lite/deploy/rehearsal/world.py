@@ -118,9 +118,13 @@ class SimulatedWorld:
         lab: the lab config (drones, pads, geofence, simulation section).
         simulator: a one-environment swarm simulator stepping ``1 / lab.rates.loop_hz`` per step.
         seed: seed of the platform placement and start positions (default: ``lab.simulation.seed``).
+        starts: where the drones rest at first ``(N, 3)`` m, drone order (default: ``lab.simulation.start_positions``
+            or, without them, places drawn with ``seed``).
     """
 
-    def __init__(self, lab: LabConfig, simulator: Any, seed: int | None = None) -> None:
+    def __init__(
+        self, lab: LabConfig, simulator: Any, seed: int | None = None, starts: np.ndarray | None = None
+    ) -> None:
         if simulator.num_envs != 1:
             raise ValueError(f"The simulated lab needs a simulator with num_envs=1, got {simulator.num_envs}.")
         if not np.isclose(simulator.task.dt, 1.0 / lab.rates.loop_hz):
@@ -159,7 +163,7 @@ class SimulatedWorld:
         rng = np.random.default_rng(lab.simulation.seed if seed is None else seed)
         simulator.reset(np.array([0]), rng)
         self._pad_body_offsets = self._check_pads()
-        starts = self._start_positions(rng)
+        starts = self._start_positions(rng) if starts is None else np.array(starts, dtype=float)
         simulator.place(0, starts)
         simulator.stop_motors(np.ones((1, self.n), dtype=bool))
         self.start_positions = starts
@@ -262,6 +266,10 @@ class SimulatedWorld:
         low, high = self._fence
         excess = np.maximum(low - state.pos[0], state.pos[0] - high).max(axis=1)
         self.fence_excess = np.maximum(self.fence_excess, excess)
+
+    def index(self, name: str) -> int:
+        """The index of the drone named ``name`` in this world's order (the order of its lab config's drones)."""
+        return self.lab.drone_names.index(name)
 
     def run_away(self, drone: int, velocity: np.ndarray) -> None:
         """Make ``drone`` fly ``velocity`` ``(3,)`` m/s, world frame, whatever it is told, until it leaves the soft
