@@ -21,7 +21,7 @@ from marlander_lite.deploy.link import CrazyflieLink
 from marlander_lite.deploy.pairing import PairingError, pair_drones_with_pads, pairing_line, resting_positions
 from marlander_lite.deploy.pose_sources import MotionCaptureSource, PoseFrame, RealClock
 from marlander_lite.deploy.rehearsal import rehearse
-from marlander_lite.deploy.rehearsal.faults import FaultSpec
+from marlander_lite.deploy.rehearsal.faults import FAULT_KINDS, FaultSpec
 from marlander_lite.deploy.rehearsal.virtual_crazyflie import VirtualCfFactory
 from marlander_lite.deploy.rehearsal.virtual_firmware import VirtualFirmware
 from marlander_lite.deploy.rehearsal.world import SimulatedWorld, make_simulator
@@ -228,3 +228,22 @@ def test_a_drone_missing_from_the_motion_capture_stops_the_flight_before_anythin
         legacy = [struct.unpack("<fffH", data) for p, _, data in cf.sent if p == CRTPPort.COMMANDER]
         assert all(thrust == 0 for *_, thrust in legacy), legacy
     assert not (tmp_path / "f.jsonl").exists()
+
+
+@pytest.mark.parametrize("fault", FAULT_KINDS)
+def test_every_fault_ends_safely_with_the_pads_swapped(fault, lab, p_controller_policy):
+    """Each fault names drone 0 (cf1), which the pairing sends to pad2; the world lists cf2 first. The fault must hit
+    cf1 and every drone must end at rest inside the fence, as in the faults of test_deploy_rehearsal.py."""
+    lab = lab.replace(simulation=dataclasses.replace(lab.simulation, start_positions=((1.0, 0.6), (-1.0, -0.6))))
+    result = rehearse(lab, p_controller_policy, fault=FaultSpec(fault))
+    assert result.pads == ["pad2", "pad1"]
+    assert result.safe and result.inside_fence.all() and result.at_rest.all(), result.summary()
+    [injected] = [e for e in result.mission.events if e.kind == "fault_injected"]
+    if fault in ("occlusion", "nan-pose", "link-loss", "geofence-breach"):  # faults of one drone name it
+        assert "cf1" in injected.message and "cf2" not in injected.message, injected.message
+    if fault == "link-loss":
+        assert result.mission.phases[0] == "lost" and result.mission.phases[1] == "down"
+        watchdog = [d for d, _, kind, _ in result.firmware_events if kind == "watchdog"]
+        assert set(watchdog) == {"cf1"}, watchdog
+        firmware = [e for e in result.mission.events if e.kind == "firmware"]  # logged against the drone they name
+        assert firmware and all(e.drone == 0 and "cf1" in e.message for e in firmware), firmware
