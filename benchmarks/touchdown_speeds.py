@@ -20,12 +20,9 @@ from typing import Any
 
 import numpy as np
 
-from marlander_lite.envs.options import policy_input
-from marlander_lite.platforms import PlatformConfig
 from marlander_lite.pointmass.family import NOMINAL, DynamicsFamily
-from marlander_lite.pointmass.simulator import PointMassParams
-from marlander_lite.swarm.evaluation import actor_factory, make_episodes
 from marlander_lite.swarm.safety_filter import parse_settings
+from marlander_lite.swarm.touchdowns import touchdown_speeds
 
 MEMBERS: dict[str, dict[str, float] | None] = {
     "nominal": {},
@@ -40,32 +37,6 @@ MEMBERS: dict[str, dict[str, float] | None] = {
     "training family": None,
 }
 """Row label -> the properties changed from the nominal point mass (:data:`NOMINAL`); None: the whole family."""
-
-
-def touchdown_speeds(
-    policy: str, family: DynamicsFamily, episodes: int, seed: int, filter_settings: dict[str, float] | None
-) -> np.ndarray:
-    """Speed (m/s) of the first touchdown of each of ``episodes`` lone drones; NaN for a drone that never touched."""
-    # Every touchdown "crashes" under a limit of 1 mm/s, so the simulator reports its speed at the contact.
-    episodes_ = make_episodes(
-        1, episodes, seed, params=PointMassParams(family=family), task_changes={"touchdown_speed_max": 1e-3}
-    )
-    controller = "shared" if filter_settings is None else "shared-filter"
-    act = actor_factory(
-        controller, episodes_.task, PlatformConfig(), episodes, policy_path=policy, filter_settings=filter_settings
-    )(None)
-    obs = policy_input(episodes_.reset())
-    speeds, flying = np.full(episodes, np.nan), np.ones(episodes, dtype=bool)
-    for _ in range(int(episodes_.task.episode_seconds * episodes_.task.policy_hz) + 1):
-        outcome = episodes_.step(act(obs))
-        obs = policy_input(outcome.obs)
-        crashed = flying & outcome.crashed[:, 0]
-        speeds[crashed] = np.linalg.norm(episodes_.sim.state().vel[crashed, 0], axis=-1)
-        speeds[flying & outcome.landed_now[:, 0]] = 0.0  # slower than 1 mm/s: a landing even under that limit
-        flying &= ~(outcome.terminated | outcome.truncated)
-        if not flying.any():
-            break
-    return speeds
 
 
 def main(argv: list[str] | None = None) -> None:

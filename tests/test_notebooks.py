@@ -701,6 +701,20 @@ def check_09(shown: Shown) -> None:
     assert first_number(unpaired["collisions % [95 % CI]"]) > 10 * first_number(alone["collisions % [95 % CI]"])
     for stem in ("crazyflie_firmware_paired", "crazyflie_pid_paired", "crazyflie_held_out_paired"):
         assert f"**{stem}**" in shown_tables
+    # Touchdown speeds: 40 ms of latency pushes lone drones of the shipped policy over the 0.5 m/s limit, which the
+    # filter with settled_sink_limit 0.4 keeps them under.
+    over = {
+        (label, flown): (count, total)
+        for label, flown, count, total in re.findall(
+            r"^(nominal|latency 0.04 s), (alone|filter, settled_sink_limit 0.4): median \S+ m/s, largest \S+ m/s, "
+            r"above 0.5 m/s: (\d+) of (\d+)$",
+            shown.text,
+            re.MULTILINE,
+        )
+    }
+    assert len(over) == 4, over
+    assert int(over[("latency 0.04 s", "alone")][0]) >= 0.2 * int(over[("latency 0.04 s", "alone")][1]), over
+    assert over[("latency 0.04 s", "filter, settled_sink_limit 0.4")][0] == "0", over
     # The lab loop pairs the drones with pads at take-off: the 8-drone rehearsal swaps some pads and lands every drone
     # on the one it was given, within the pad radius by the simulator's truth.
     [line] = re.findall(r"Pads paired with the drones by the shortest paths: (.*)\.", shown.text)

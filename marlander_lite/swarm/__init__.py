@@ -6,5 +6,6 @@
 :mod:`~marlander_lite.swarm.policy`       the shared policy flying a whole swarm, from a policy file
 :mod:`~marlander_lite.swarm.train`        PPO with parameter sharing over a mixture of swarm sizes
 :mod:`~marlander_lite.swarm.evaluation`   success, error, time, separation and collisions vs N
+:mod:`~marlander_lite.swarm.touchdowns`   the speed of every touchdown, on any point mass of the dynamics family
 =====================================  =============================================================
 """
