@@ -55,6 +55,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--controller", default=None, help="PyBullet tracker (firmware, pid); default: firmware")
     parser.add_argument("--platform", default=None, help="simulation.platform instead of the config's")
     parser.add_argument("--platform-speed", type=float, default=None, help="simulation.platform_speed (m/s)")
+    parser.add_argument(
+        "--mocap-latency", type=float, default=None, help="simulation.latency_s: how late poses arrive (s)"
+    )
     parser.add_argument("--takeoff-height", type=float, default=None, help="limits.takeoff_height (m)")
     parser.add_argument("--no-filter", action="store_true", help="fly without the safety filter (the policy alone)")
     parser.add_argument(
@@ -64,8 +67,10 @@ def main(argv: list[str] | None = None) -> None:
         "--filter-settings", default="", metavar="KEY=VALUE,...", help="safety_filter keys instead of the config's"
     )
     args = parser.parse_args(argv)
+    if args.mocap_latency is not None and not 0.0 <= args.mocap_latency <= 1.0:
+        parser.error(f"--mocap-latency must be from 0 to 1 s, got {args.mocap_latency}")
     lab = load_lab_config(args.config)
-    simulation = {"platform": args.platform, "platform_speed": args.platform_speed}
+    simulation = {"platform": args.platform, "platform_speed": args.platform_speed, "latency_s": args.mocap_latency}
     try:
         safety_filter = lab.safety_filter.with_settings(parse_settings(args.filter_settings))
     except ValueError as error:  # ConfigError is one
