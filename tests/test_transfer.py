@@ -422,3 +422,31 @@ def test_lag_sweep_refuses_malformed_time_constants(capsys, taus, message):
         sweep.parse_taus(argparse.ArgumentParser(prog="tracker_lag_sweep.py"), taus)
     assert stop.value.code == 2
     assert message in capsys.readouterr().err
+
+
+SHARED = "data/policies/shared-quick-paired.safetensors"
+
+
+def test_the_matrix_flies_a_shared_policy_at_the_swarm_size_asked_for(tmp_path, capsys) -> None:
+    """One network per drone, at N = 4: on the point mass floor it lands as its scaling table says (97.5 %)."""
+    config = transfer.TransferConfig(
+        policy=SHARED, episodes=8, columns=("point mass",), rows=("floor",), workers=1, num_drones=4
+    )
+    (cell,) = transfer.transfer_matrix(config)
+    assert cell.successes >= 7, cell
+    assert cell.landing_error_cm <= 2.26
+    out = tmp_path / "t"
+    args = ["transfer", SHARED, "--num-drones", "3", "--episodes", "2", "--rows", "floor", "--columns", "point mass"]
+    assert main([*args, "--workers", "1", "--out", str(out)]) == 0
+    assert "(a shared policy flying 3 drones, 2 episodes a cell" in (out / "transfer.md").read_text()
+    assert json.loads((out / "transfer.json").read_text())["config"]["num_drones"] == 3
+
+
+def test_a_centralised_policy_flies_only_its_own_swarm_size(tmp_path, capsys) -> None:
+    with pytest.raises(
+        ValueError, match=r"--num-drones 3: .* centralised policy for 2 drones and flies only that many"
+    ):
+        transfer.transfer_matrix(transfer.TransferConfig(policy=POLICY, episodes=1, num_drones=3))
+    with pytest.raises(ValueError, match=r"--num-drones must be an integer from 1 to 64, got 0"):
+        transfer.TransferConfig(policy=SHARED, num_drones=0)
+    assert transfer.TransferConfig(policy=POLICY, num_drones=2).swarm_size() is None  # its own N, said again

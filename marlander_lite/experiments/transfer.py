@@ -54,6 +54,7 @@ from marlander_lite.experiments.protocol import trial_seed
 from marlander_lite.policy_file import MLPPolicy, load_policy
 from marlander_lite.rotations import tilt_deg
 from marlander_lite.simulators import simulator_entry
+from marlander_lite.swarm.policy import SharedPolicy
 from marlander_lite.swarm.safety_filter import SafetyFilterConfig, with_safety_filter
 from marlander_lite.swarm.tracker_lag import TrackerLag
 
@@ -186,11 +187,18 @@ def find_row(name: str) -> Row:
     raise ValueError(f"Unknown transfer row {name!r}; allowed: {', '.join(r.name for r in ROWS)}.")
 
 
-def build_episodes(policy: MLPPolicy, column: Column, row: Row, sensing: str) -> LandingEpisodes:
-    """One swarm of ``column``'s simulator on ``row``'s platform, with the policy's task and no training aid."""
+def build_episodes(
+    policy: MLPPolicy, column: Column, row: Row, sensing: str, num_drones: int | None = None
+) -> LandingEpisodes:
+    """One swarm of ``column``'s simulator on ``row``'s platform, with the policy's task and no training aid.
+
+    A shared policy flies ``num_drones`` drones from the paper's starts (its training's start separation, an aid for
+    crowded swarms, is not kept); its other task fields (the pairing of starts with pads, say) stay as trained."""
     task_fields = {**policy.contract.task, **training_aids.TRAINING_AIDS_OFF}
+    if policy.contract.is_shared:
+        task_fields.pop("spawn_separation", None)
     options = dict(
-        num_drones=policy.contract.num_drones,
+        num_drones=(num_drones or 2) if policy.contract.is_shared else policy.contract.num_drones,
         platform=row.platform,
         platform_speed=row.speed,
         task=task_fields,
@@ -210,16 +218,18 @@ def fly_cell(
     seed: int,
     sensing: str,
     safety_filter: dict[str, float] | None = None,
+    num_drones: int | None = None,
 ) -> CellResult:
     """Fly ``episodes`` episodes of one cell (runs in a worker process). ``safety_filter``: None, or the settings
     (changes to :class:`SafetyFilterConfig`'s defaults, ``{}`` for none) of the deployment's safety filter
     (:mod:`marlander_lite.swarm.safety_filter`), which then changes every command before it is flown. ``column``
-    is a column's name or a :class:`Column` (a simulator setting none of the named columns is)."""
+    is a column's name or a :class:`Column` (a simulator setting none of the named columns is). ``num_drones``:
+    the swarm size a shared policy flies (a centralised one flies its own)."""
     started = time.perf_counter()
     policy = load_policy(policy_path)
     column = column if isinstance(column, Column) else find_column(column)
     row = find_row(row_name)
-    world = build_episodes(policy, column, row, sensing)
+    world = build_episodes(policy, column, row, sensing, num_drones)
     cfg = world.task
     lag = tracker_lag(safety_filter, world.task)
     act = cell_actor(policy, world, safety_filter, lag)
@@ -314,8 +324,12 @@ def cell_actor(
     """Observations ``(1, N, obs_per_drone)`` -> the actions flown ``(1, 3 N)``: the policy's, through the safety
     filter with ``safety_filter``'s settings unless it is None (identifying the tracker with ``lag``, if given)."""
 
+    flown: Any = policy
+    if policy.contract.is_shared:  # one network per drone, each with its own input (marlander_lite.swarm)
+        flown = SharedPolicy(policy, world.task, world.sim.platform.geometry)
+
     def act(obs: np.ndarray) -> np.ndarray:
-        return policy.act(policy_input(obs))
+        return flown.act(policy_input(obs))
 
     if safety_filter is None:
         return act
@@ -369,6 +383,8 @@ class TransferConfig:
     """None: the policy's commands are flown as they are. A dict: every command goes through the safety filter that
     ``marlander deploy`` puts after the policy (on by default there), with these changes to
     :class:`SafetyFilterConfig`'s defaults (``{}``: none)."""
+    num_drones: int | None = None
+    """Swarm size a shared policy flies (None: 2, the paper's); a centralised policy flies its own, no other."""
 
     def __post_init__(self) -> None:
         if isinstance(self.episodes, bool) or not isinstance(self.episodes, int) or self.episodes < 1:
@@ -387,14 +403,31 @@ class TransferConfig:
             find_row(name)
         if self.safety_filter is not None:
             SafetyFilterConfig.from_dict(self.safety_filter)  # unknown or invalid settings fail before any flight
+        n = self.num_drones
+        if n is not None and (isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= 64):
+            raise ValueError(f"--num-drones must be an integer from 1 to 64, got {n!r}.")
+
+    def swarm_size(self) -> int | None:
+        """The N a shared policy flies (None for a centralised policy, which flies its own); refuses a ``num_drones``
+        a centralised policy was not trained for."""
+        contract = load_policy(self.policy).contract
+        if contract.is_shared:
+            return self.num_drones or 2
+        if self.num_drones not in (None, contract.num_drones):
+            raise ValueError(
+                f"--num-drones {self.num_drones}: {self.policy} is a centralised policy for {contract.num_drones} "
+                "drones and flies only that many; leave --num-drones out, or give a shared policy."
+            )
+        return None
 
 
 def transfer_matrix(config: TransferConfig) -> list[CellResult]:
     """Fly every cell of ``config`` and return the results, rows outer, columns inner, in the given order."""
-    load_policy(config.policy).contract.require_centralised("marlander transfer")  # fails before any worker starts
+    n = config.swarm_size()  # fails before any worker starts
     cells = [(c, r) for r in config.rows for c in config.columns]
     args = [
-        (str(config.policy), c, r, config.episodes, config.seed, config.sensing, config.safety_filter) for c, r in cells
+        (str(config.policy), c, r, config.episodes, config.seed, config.sensing, config.safety_filter, n)
+        for c, r in cells
     ]
     if config.workers == 1:
         return [fly_cell(*a) for a in args]
@@ -460,8 +493,10 @@ def write_results(config: TransferConfig, results: list[CellResult], out: Path, 
         # The settings as flown, defaults included: a later change of a default must not change what this file says.
         meta["safety_filter_resolved"] = SafetyFilterConfig.from_dict(config.safety_filter).to_dict()
     json_path.write_text(json.dumps({**meta, "cells": [asdict(r) for r in results]}, indent=2) + "\n")
+    n = config.swarm_size()
+    swarm = "" if n is None else f"a shared policy flying {n} drones, "
     md_path.write_text(
-        f"Transfer matrix of `{config.policy}` ({config.episodes} episodes a cell, seed {config.seed}, "
+        f"Transfer matrix of `{config.policy}` ({swarm}{config.episodes} episodes a cell, seed {config.seed}, "
         f"sensing {config.sensing}{_filter_words(config.safety_filter)}): success % [95 % Wilson] / mean landing "
         "error.\n\n" + format_table(results) + "\n\n" + format_flight_table(results) + "\n"
     )

@@ -61,6 +61,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--sensing", choices=("vicon", "perfect"), default="vicon", help="observation model (default vicon)")
     p.add_argument("--workers", type=int, default=2, help="worker processes (default 2)")
     p.add_argument(
+        "--num-drones",
+        type=int,
+        default=None,
+        help="swarm size a shared policy flies (default 2); a centralised policy flies its own",
+    )
+    p.add_argument(
         "--safety-filter",
         nargs="?",
         const={},
@@ -94,6 +100,7 @@ def run(args: argparse.Namespace) -> int:
         sensing=args.sensing,
         workers=args.workers,
         safety_filter=args.safety_filter,
+        num_drones=args.num_drones,
     )
     out = args.out or Path("runs") / f"transfer-{args.policy.stem}"
     existing = [out / name for name in OUTPUT_NAMES if (out / name).exists()]
