@@ -495,6 +495,8 @@ def write_results(config: TransferConfig, results: list[CellResult], out: Path, 
     json_path.write_text(json.dumps({**meta, "cells": [asdict(r) for r in results]}, indent=2) + "\n")
     n = config.swarm_size()
     swarm = "" if n is None else f"a shared policy flying {n} drones, "
+    if load_policy(config.policy).contract.task.get("pad_assignment", "fixed") == "shortest":  # as it was trained
+        swarm += "starts paired with the pads by the shortest pairing, "
     md_path.write_text(
         f"Transfer matrix of `{config.policy}` ({swarm}{config.episodes} episodes a cell, seed {config.seed}, "
         f"sensing {config.sensing}{_filter_words(config.safety_filter)}): success % [95 % Wilson] / mean landing "
