@@ -6,6 +6,7 @@ Examples::
     marlander transfer P --episodes 20 --rows floor,UR10 --out runs/t      # a quick look
     marlander transfer P --columns "point mass,PyBullet firmware"
     marlander transfer P --safety-filter cone_radius=0.04,reaction_time=0.35  # as deployed, moving pads
+    marlander transfer data/policies/shared-quick-paired.safetensors --num-drones 8  # a shared policy, 8 drones
 
 Writes ``transfer.csv``, ``transfer.json`` and ``transfer.md`` to ``--out`` (default
 ``runs/transfer-<policy name>``) and prints the table. Existing files are kept unless ``--force``.
