@@ -44,6 +44,20 @@ def test_a_ground_cushion_slows_the_touchdown_by_at_most_the_loops_error_at_the_
     assert (speeds >= SINK - largest_slowing).all() and (speeds < SINK - 0.05).all(), speeds
 
 
+def test_a_policy_that_reads_its_previous_command_gets_it(tmp_path):
+    """The task follows the file's observation options: a policy whose input holds its previous command (16 numbers
+    of its own) is fed 16, and sinks as the 13-number one does."""
+    contract = PolicyContract(
+        num_drones=None, neighbours=3, max_speed=3.0, policy_hz=24.0, activation="relu", hidden_sizes=(),
+        normalize_observations=False, obs_per_drone=16, task={"observe_previous_command": True},
+    )  # fmt: skip
+    weight = np.zeros((3, 16 + NEIGHBOUR_FEATURES * 3))
+    bias = np.array([0.0, 0.0, -SINK / 3.0])
+    path = save_policy(tmp_path / "sink16.safetensors", contract, {"actor.0.weight": weight, "actor.0.bias": bias})
+    speeds = touchdown_speeds(path, DynamicsFamily.fixed(), episodes=10, seed=1)
+    np.testing.assert_allclose(speeds, SINK, atol=0.005)
+
+
 def test_touchdown_speeds_are_seeded_and_refuse_no_episodes(sinking_policy):
     family = DynamicsFamily()
     a, b = (touchdown_speeds(sinking_policy, family, episodes=8, seed=3) for _ in range(2))

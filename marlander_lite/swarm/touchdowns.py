@@ -18,6 +18,7 @@ from marlander_lite.envs.options import policy_input
 from marlander_lite.platforms import PlatformConfig
 from marlander_lite.pointmass.family import DynamicsFamily
 from marlander_lite.pointmass.simulator import PointMassParams
+from marlander_lite.policy_file import read_contract
 from marlander_lite.swarm.evaluation import actor_factory, make_episodes
 
 
@@ -44,9 +45,8 @@ def touchdown_speeds(
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}.")
     # Under a limit of 1 mm/s every touchdown counts as a crash, and the simulator reports its speed at the contact.
-    swarm = make_episodes(
-        1, episodes, seed, params=PointMassParams(family=family), task_changes={"touchdown_speed_max": 1e-3}
-    )
+    changes = {"touchdown_speed_max": 1e-3, **read_contract(policy_path).observation_options()}
+    swarm = make_episodes(1, episodes, seed, params=PointMassParams(family=family), task_changes=changes)
     controller = "shared" if filter_settings is None else "shared-filter"
     act = actor_factory(
         controller, swarm.task, PlatformConfig(), episodes, policy_path=policy_path, filter_settings=filter_settings

@@ -29,6 +29,7 @@ import torch
 from stable_baselines3.common.callbacks import CallbackList
 from stable_baselines3.common.vec_env import VecNormalize
 
+from marlander_lite.swarm import memory
 from marlander_lite.swarm.policy import export_shared_policy
 from marlander_lite.swarm.safety_filter import SafetyFilterConfig
 from marlander_lite.swarm.vec_env import SharedSwarmVecEnv
@@ -182,6 +183,12 @@ SHARED_PRESETS["shared-quick-paired-soft"] = SHARED_PRESETS["shared-quick-paired
     # its drones, which at N = 8 fails one swarm in ten; a landing counted in training only below 0.15 m/s.
     task={**SHARED_PRESETS["shared-quick-paired"].task, "training_touchdown_speed": 0.15},
 )
+SHARED_PRESETS["shared-quick-memory"] = SHARED_PRESETS["shared-quick-paired-soft"].replace(
+    # Stage 6 (``--init-from`` a shared-quick-paired run; its network is widened, swarm/memory.py). Under 20-60 ms of
+    # latency the shipped policy touches down too fast (docs/scaling.md, "Why the touchdowns are not soft"): from its
+    # state alone it cannot tell a late tracker from a slow one. Each drone also reads the command it sent last.
+    task={**SHARED_PRESETS["shared-quick-paired-soft"].task, "observe_previous_command": True},
+)
 """Shared-policy presets. ``shared-quick``: the quick-cpu recipe (128-128 ReLU, training aids, noisy sensing,
 dynamics family) on swarms of 1 to 4 drones, each drone sensing its 3 nearest neighbours, 16 M drone steps;
 ``shared-quick-continue`` trains such a run on for 16 M more steps on swarms of 2 to 4; ``shared-quick-local``
@@ -189,7 +196,8 @@ does so on swarms of 2, 4 and 8 with neighbours sensed within 0.2 m only (the sh
 ``shared-quick-shielded`` trains that one on with the safety filter as a shield and a penalty on its corrections;
 ``shared-quick-drone-ends`` trains it on with per-drone episode ends; ``shared-quick-paired`` trains that one on with
 starts paired with pads by the shortest pairing and a stricter touchdown speed, ``shared-quick-paired-soft`` that one
-with a stricter one still (the shipped ``shared-quick-paired`` policy).
+with a stricter one still (the shipped ``shared-quick-paired`` policy); ``shared-quick-memory`` continues that one with
+its previous command in each drone's input (:mod:`~marlander_lite.swarm.memory`; tried, not shipped).
 N = 16 is never seen in training."""
 
 
@@ -235,9 +243,13 @@ def train_shared(config: SharedTrainConfig, out_dir: str | Path, *, preset: str 
     }
     files.config.write_text(json.dumps(record, indent=2))
     torch.set_num_threads(config.torch_threads)
-    if config.init_from:  # continue a shared run: its model and its normaliser's statistics
+    widen = bool(config.init_from) and memory.adds_previous_command(
+        memory.source_task(config.init_from), config.task_config()
+    )
+    if config.init_from and not widen:  # continue a shared run: its model and its normaliser's statistics
         env = VecNormalize.load(str(RunFiles(Path(config.init_from)).normalizer), make_shared_env(config))
         env.training, env.norm_reward = True, config.normalize_rewards
+        model = _new_model(config, env)
     else:
         env = VecNormalize(
             make_shared_env(config),
@@ -246,7 +258,9 @@ def train_shared(config: SharedTrainConfig, out_dir: str | Path, *, preset: str 
             gamma=config.gamma,
             epsilon=config.obs_norm_epsilon,
         )
-    model = _new_model(config, env)
+        model = _new_model(config.replace(init_from=None), env)
+        if widen:  # the source run's weights and statistics, with the previous command as new inputs
+            memory.widened_start(config.init_from, model, env)
     model.set_logger(make_logger(files.progress.parent, append=False))
     callbacks = CallbackList(
         [LandingStatsCallback(), CheckpointEvery(files.checkpoints, config.checkpoint_every), *regulariser_for(config)]
