@@ -74,6 +74,18 @@ def test_only_adding_the_previous_command_is_accepted():
         memory.adds_previous_command(plain, plain.replace(observe_previous_command=True, observation_history=2))
 
 
+def test_a_source_that_is_not_a_finished_run_is_refused_before_anything_is_written(tmp_path):
+    config = SHARED_PRESETS["shared-quick-memory"].replace(init_from=str(tmp_path / "nothing"), **SMALL)
+    with pytest.raises(FileNotFoundError, match="give a finished shared run directory"):
+        train_shared(config, tmp_path / "run")
+    unfinished = tmp_path / "unfinished"
+    unfinished.mkdir()
+    (unfinished / "config.json").write_text((SOURCE / "config.json").read_text())
+    with pytest.raises(FileNotFoundError, match=r"lacks model\.zip and vecnormalize\.pkl"):
+        train_shared(config.replace(init_from=str(unfinished)), tmp_path / "run")
+    assert not (tmp_path / "run").exists()  # the same --out still takes the corrected command
+
+
 def test_a_memory_stage_continues_the_shipped_run_into_a_policy_that_flies_with_its_command(tmp_path):
     """One rollout at a step size of 1e-9: the exported policy must still act as the source's does (the command's
     weights near zero), read 16 numbers per drone, and fly an evaluation cell, which feeds it its commands."""

@@ -1,9 +1,9 @@
 """Give a trained shared policy a memory of its last command, without forgetting what it learnt.
 
-Under command latency a drone cannot tell from its state alone what its tracker is still about to do: the command it
-sent one step ago (1/24 s) has barely begun to act. A policy that reads its previous command
-(``TaskConfig.observe_previous_command``, beyond the paper) can. Adding those 3 numbers to a trained network's input
-would normally mean training from scratch, through every stage of the shared recipe. Instead
+Under command latency a drone's state alone does not say what its tracker is still about to do; the command it sent
+one step ago (1/24 s), still on its way, says part of it. A policy that reads its previous command
+(``TaskConfig.observe_previous_command``, beyond the paper) could use that. Adding those 3 numbers to a trained
+network's input would normally mean training from scratch, through every stage of the shared recipe. Instead
 :func:`widened_start` continues a finished shared run with the wider input:
 
 * the first layer of the actor and of the critic gets 3 new input columns, all zeros, at the place the command takes
@@ -14,7 +14,8 @@ would normally mean training from scratch, through every stage of the shared rec
   before and the new ones start in range.
 
 PPO then learns how much to use the new inputs. ``marlander swarm train --preset shared-quick-memory --init-from RUN``
-does this when ``RUN`` did not observe its previous command and the preset does.
+does this when ``RUN`` did not observe its previous command and the preset does. Tried from ``shared-quick-paired``, it
+did not teach the network to brake early under latency (docs/scaling.md, "A memory of the last command").
 """
 
 from __future__ import annotations
@@ -43,8 +44,13 @@ FIRST_LAYERS = ("mlp_extractor.policy_net.0.weight", "mlp_extractor.value_net.0.
 
 def source_task(run_dir: str | Path) -> TaskConfig:
     """The task a run was trained on, from its ``config.json`` (as ``train_shared`` records it)."""
-    record = json.loads((Path(run_dir) / "config.json").read_text())
-    return TaskConfig().replace(**record["task"])
+    record_file = Path(run_dir) / "config.json"
+    if not record_file.is_file():
+        raise FileNotFoundError(
+            f"--init-from {run_dir}: no config.json there; give a finished shared run directory (config.json, "
+            "model.zip and vecnormalize.pkl, as marlander swarm train writes them)."
+        )
+    return TaskConfig().replace(**json.loads(record_file.read_text())["task"])
 
 
 def adds_previous_command(source: TaskConfig, target: TaskConfig) -> bool:
@@ -102,9 +108,9 @@ def widened_start(source_dir: str | Path, model: PPO, env: VecNormalize) -> None
     model.num_timesteps = source.num_timesteps
     with open(source_dir / "vecnormalize.pkl", "rb") as handle:
         statistics = pickle.load(handle)
-    velocity = EQ2_VELOCITY
-    env.obs_rms.mean = widen_statistics(statistics.obs_rms.mean, at, statistics.obs_rms.mean[velocity])
-    env.obs_rms.var = widen_statistics(statistics.obs_rms.var, at, statistics.obs_rms.var[velocity])
-    env.obs_rms.count = statistics.obs_rms.count
+    rms = statistics.obs_rms
+    env.obs_rms.mean = widen_statistics(rms.mean, at, rms.mean[EQ2_VELOCITY])
+    env.obs_rms.var = widen_statistics(rms.var, at, rms.var[EQ2_VELOCITY])
+    env.obs_rms.count = rms.count
     env.ret_rms = statistics.ret_rms
     env.clip_obs, env.clip_reward = statistics.clip_obs, statistics.clip_reward

@@ -233,6 +233,15 @@ def make_shared_env(config: SharedTrainConfig, seed: int | None = None) -> Share
 def train_shared(config: SharedTrainConfig, out_dir: str | Path, *, preset: str | None = None) -> RunFiles:
     """Train a shared policy with PPO and write the run directory ``out_dir`` (refused if it holds a run)."""
     files = check_new_run(config, out_dir)
+    widen = False
+    if config.init_from:  # checked before anything is written, so that a corrected command can reuse out_dir
+        source = RunFiles(Path(config.init_from))
+        widen = memory.adds_previous_command(memory.source_task(source.root), config.task_config())
+        missing = [path.name for path in (source.model, source.normalizer) if not path.is_file()]
+        if missing:
+            raise FileNotFoundError(
+                f"--init-from {source.root} lacks {' and '.join(missing)}; give a finished shared run directory."
+            )
     files.root.mkdir(parents=True, exist_ok=True)
     record: dict[str, Any] = {
         "preset": preset,
@@ -243,9 +252,6 @@ def train_shared(config: SharedTrainConfig, out_dir: str | Path, *, preset: str 
     }
     files.config.write_text(json.dumps(record, indent=2))
     torch.set_num_threads(config.torch_threads)
-    widen = bool(config.init_from) and memory.adds_previous_command(
-        memory.source_task(config.init_from), config.task_config()
-    )
     if config.init_from and not widen:  # continue a shared run: its model and its normaliser's statistics
         env = VecNormalize.load(str(RunFiles(Path(config.init_from)).normalizer), make_shared_env(config))
         env.training, env.norm_reward = True, config.normalize_rewards
