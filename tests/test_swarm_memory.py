@@ -48,6 +48,7 @@ def test_the_widened_network_acts_and_values_as_its_source_whatever_the_command_
         assert torch.equal(source.policy.get_distribution(old).mode(), model.policy.get_distribution(new).mode())
         assert torch.equal(source.policy.predict_values(old), model.policy.predict_values(new))
     assert model.num_timesteps == source.num_timesteps > 0
+    assert torch.equal(model.policy.log_std, source.policy.log_std)  # the source's exploration noise goes on
 
 
 def test_the_new_inputs_are_standardised_like_the_velocity_and_the_old_ones_as_before():
@@ -93,6 +94,9 @@ def test_a_memory_stage_continues_the_shipped_run_into_a_policy_that_flies_with_
         init_from=str(SOURCE), total_steps=1024, learning_rate=1e-9, seed=0, **SMALL
     )
     files = train_shared(config, tmp_path / "run", preset="shared-quick-memory")
+    reset = train_shared(config.replace(reset_log_std=True, log_std_init=-3.0), tmp_path / "reset")
+    log_std = PPO.load(reset.model, device="cpu").policy.log_std
+    assert torch.allclose(log_std, torch.full_like(log_std, -3.0), atol=1e-3)  # reset as a plain --init-from resets
     contract = read_contract(files.policy)
     assert contract.obs_per_drone == OBS_PER_DRONE + 3 and contract.observation_options()["observe_previous_command"]
     source_steps = read_contract(SOURCE / "policy.safetensors").extra["steps"]

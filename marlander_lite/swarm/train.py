@@ -267,6 +267,9 @@ def train_shared(config: SharedTrainConfig, out_dir: str | Path, *, preset: str 
         model = _new_model(config.replace(init_from=None), env)
         if widen:  # the source run's weights and statistics, with the previous command as new inputs
             memory.widened_start(config.init_from, model, env)
+            if config.reset_log_std:  # as a plain --init-from does
+                with torch.no_grad():
+                    model.policy.log_std.fill_(config.log_std_init)
     model.set_logger(make_logger(files.progress.parent, append=False))
     callbacks = CallbackList(
         [LandingStatsCallback(), CheckpointEvery(files.checkpoints, config.checkpoint_every), *regulariser_for(config)]
