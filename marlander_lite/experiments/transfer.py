@@ -187,6 +187,10 @@ def find_row(name: str) -> Row:
     raise ValueError(f"Unknown transfer row {name!r}; allowed: {', '.join(r.name for r in ROWS)}.")
 
 
+SHARED_SWARM_SIZE = 2
+"""Drones a shared policy flies in the matrix unless told otherwise: the paper's two."""
+
+
 def build_episodes(
     policy: MLPPolicy, column: Column, row: Row, sensing: str, num_drones: int | None = None
 ) -> LandingEpisodes:
@@ -198,7 +202,7 @@ def build_episodes(
     if policy.contract.is_shared:
         task_fields.pop("spawn_separation", None)
     options = dict(
-        num_drones=(num_drones or 2) if policy.contract.is_shared else policy.contract.num_drones,
+        num_drones=(num_drones or SHARED_SWARM_SIZE) if policy.contract.is_shared else policy.contract.num_drones,
         platform=row.platform,
         platform_speed=row.speed,
         task=task_fields,
@@ -412,7 +416,7 @@ class TransferConfig:
         a centralised policy was not trained for."""
         contract = load_policy(self.policy).contract
         if contract.is_shared:
-            return self.num_drones or 2
+            return self.num_drones or SHARED_SWARM_SIZE
         if self.num_drones not in (None, contract.num_drones):
             raise ValueError(
                 f"--num-drones {self.num_drones}: {self.policy} is a centralised policy for {contract.num_drones} "
