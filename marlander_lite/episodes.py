@@ -287,19 +287,21 @@ class LandingEpisodes:
                 self._goal_lift, self._limits, self.task.observe_platform_velocity, self.task.observe_previous_command,
                 obs, dist,
             )  # fmt: skip
-            pos = s.pos[ids]
+            _task_kernels().start_episodes(
+                ids.astype(np.int64, copy=False), s.pos, dist, self.steps, self.landed, self.prev_dist,
+                self.landing_error, self.landing_time, self.episode_return, self.previous_command, self.min_separation,
+            )  # fmt: skip
         else:
             s = self.sim.state().take(ids)
             rel_pos, _, obs = self._measure(s, np.zeros_like(s.vel))
-            dist, pos = vector_norm(rel_pos), s.pos
-        self.steps[ids] = 0
-        self.landed[ids] = False
-        self.prev_dist[ids] = dist
-        self.landing_error[ids] = np.nan
-        self.landing_time[ids] = np.nan
-        self.episode_return[ids] = 0.0
-        self.previous_command[ids] = 0.0
-        self.min_separation[ids] = task.min_separation(pos)
+            self.steps[ids] = 0
+            self.landed[ids] = False
+            self.prev_dist[ids] = vector_norm(rel_pos)
+            self.landing_error[ids] = np.nan
+            self.landing_time[ids] = np.nan
+            self.episode_return[ids] = 0.0
+            self.previous_command[ids] = 0.0
+            self.min_separation[ids] = task.min_separation(s.pos)
         seen = self.channel.reset(ids, obs, self.rng)
         if self._observes_acceleration:
             self.pad_acceleration[ids] = 0.0

@@ -21,7 +21,7 @@ import math
 
 import numpy as np
 
-from marlander_lite.pointmass.kernels import CONTACT_NONE, CONTACT_OWN_PAD, _clip, jit_kernel
+from marlander_lite.pointmass.kernels import CONTACT_NONE, CONTACT_OWN_PAD, _clip, jit_inline, jit_kernel
 
 
 @jit_kernel
@@ -194,3 +194,88 @@ def observe_envs(
     if observe_pad_vel or observe_command:
         no_command = np.zeros((len(env_ids), n, 3))
         _observe_extras(env_ids, pad_vel, no_command, limits[1], observe_pad_vel, observe_command, obs)
+
+
+@jit_kernel
+def start_episodes(
+    env_ids: np.ndarray,
+    pos: np.ndarray,
+    dist: np.ndarray,
+    steps: np.ndarray,
+    landed: np.ndarray,
+    prev_dist: np.ndarray,
+    landing_error: np.ndarray,
+    landing_time: np.ndarray,
+    episode_return: np.ndarray,
+    previous_command: np.ndarray,
+    min_separation: np.ndarray,
+) -> None:
+    """The rest of ``LandingEpisodes.reset`` for the episodes ``env_ids``, in one pass: no step taken, no drone landed,
+    eq. 5's previous distance from ``dist[r]`` (:func:`observe_envs`'s), no landing recorded, no return, no previous
+    command, and the closest pair of the new starts ``pos`` ``(num_envs, N, 3)`` m, as
+    :func:`~marlander_lite.pointmass.kernels.min_separation` finds it (the minimum of the squared distances, rooted)."""
+    n = pos.shape[1]
+    for r in range(len(env_ids)):
+        k = env_ids[r]
+        steps[k] = 0
+        episode_return[k] = 0.0
+        best, nan = np.inf, False
+        for i in range(n):
+            landed[k, i] = False
+            prev_dist[k, i] = dist[r, i]
+            landing_error[k, i] = np.nan
+            landing_time[k, i] = np.nan
+            for c in range(3):
+                previous_command[k, i, c] = 0.0
+            for j in range(i + 1, n):
+                dx = pos[k, j, 0] - pos[k, i, 0]
+                dy = pos[k, j, 1] - pos[k, i, 1]
+                dz = pos[k, j, 2] - pos[k, i, 2]
+                sq = dx * dx + dy * dy + dz * dz
+                best = sq if sq < best else best
+                nan |= sq != sq
+        min_separation[k] = np.nan if nan else math.sqrt(best)
+
+
+@jit_kernel
+def episode_summaries(
+    env_ids: np.ndarray, landed: np.ndarray, landing_error: np.ndarray, landing_time: np.ndarray, out: np.ndarray
+) -> None:
+    """The record of the ended episodes ``env_ids`` (``LandingVecEnv``'s infos): ``out[r, 0]``, the mean landing error
+    over the drones of env ``env_ids[r]`` that landed (m; NaN if none did), and ``out[r, 1]``, the time its last drone
+    landed (s; NaN unless all did). The errors are added as numpy adds a row of up to 128 (:func:`_row_sum`)."""
+    n = landed.shape[1]
+    terms = np.empty(n)
+    for r in range(len(env_ids)):
+        k = env_ids[r]
+        count, last = 0, -1.0
+        for i in range(n):
+            terms[i] = landing_error[k, i] if landed[k, i] else 0.0
+            if landed[k, i]:
+                count += 1
+                last = max(last, landing_time[k, i])
+        out[r, 0] = _row_sum(terms) / count if count else np.nan
+        out[r, 1] = last if count == n else np.nan
+
+
+@jit_inline
+def _row_sum(a: np.ndarray) -> float:
+    """``a.sum()`` for a contiguous float64 row of at most 128 entries, in numpy's order: one after another below 8,
+    else eight running sums combined pairwise, then the rest (numpy's ``pairwise_sum``)."""
+    n = len(a)
+    if n < 8:
+        total = 0.0
+        for i in range(n):
+            total += a[i]
+        return total
+    r = a[:8].copy()
+    i = 8
+    while i < n - n % 8:
+        for j in range(8):
+            r[j] += a[i + j]
+        i += 8
+    total = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
+    while i < n:
+        total += a[i]
+        i += 1
+    return total

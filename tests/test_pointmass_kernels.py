@@ -5,6 +5,7 @@ import pytest
 
 from marlander_lite import rotations, task
 from marlander_lite.envs.options import policy_input
+from marlander_lite.envs.vec_env import episode_summaries
 from marlander_lite.episodes import LandingEpisodes
 from marlander_lite.platforms import PlateGeometry, PlatformConfig
 from marlander_lite.pointmass import PointMassParams, PointMassSwarm, kernels
@@ -84,6 +85,33 @@ def test_compiled_policy_input_is_numpys_cast_to_the_last_bit(monkeypatch, order
     rows = compiled.reshape(shape)  # drone i's numbers are i d ... (i + 1) d - 1 of its env's row
     np.testing.assert_array_equal(rows, obs.astype(np.float32))
     assert rows[0, 0, 0] == 1.0 and np.signbit(rows[0, 0, 1]) and rows[0, 0, 2] == 0.0
+
+
+@pytest.mark.parametrize("num_drones", [1, 2, 3, 8, 9, 16, 33])
+@pytest.mark.parametrize("order", ["C", "F"])
+def test_compiled_episode_summaries_are_the_reference_to_the_last_bit(monkeypatch, num_drones, order):
+    """The infos' ``landing_error`` (mean over the landed drones) and ``landing_time`` (the last drone's): numpy's row
+    sum (one by one below 8 drones, pairwise from 8) to the bit, and values worked by hand."""
+    rng = np.random.default_rng(num_drones)
+    landed = rng.random((60, num_drones)) < 0.7
+    landed[0], landed[1] = True, False  # all landed, none landed
+    error = np.asarray(np.where(landed, rng.uniform(0, 0.05, landed.shape), np.nan), order=order)
+    time = np.asarray(np.where(landed, rng.uniform(0, 30, landed.shape), np.nan), order=order)
+    landed = np.asarray(landed, order=order)
+    ids = np.array([0, 1, *np.sort(rng.choice(np.arange(2, 60), 30, replace=False))])
+    monkeypatch.setenv(kernels.ENGINE_VARIABLE, "numba")
+    compiled = episode_summaries(ids, landed, error, time)
+    monkeypatch.setenv(kernels.ENGINE_VARIABLE, "numpy")
+    reference = episode_summaries(ids, landed, error, time)
+    for ours, theirs in zip(compiled, reference, strict=True):
+        np.testing.assert_array_equal(ours, theirs)
+    mean_error, last_landing = compiled
+    assert mean_error[0] == pytest.approx(error[0].mean(), rel=1e-15) and last_landing[0] == time[0].max()
+    assert np.isnan(mean_error[1]) and np.isnan(last_landing[1])
+    for row, k in enumerate(ids):
+        assert np.isnan(last_landing[row]) == (not landed[k].all())
+        if landed[k].any():
+            assert mean_error[row] == pytest.approx(error[k][landed[k]].mean(), rel=1e-14)
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64, np.int64])
@@ -182,7 +210,8 @@ def rollout(engine, platform, num_drones, params, sensing, num_envs=24, steps=12
             ids = np.flatnonzero(out.done)
             obs = obs.copy()
             obs[ids] = episodes.reset(ids)
-            records.append([obs.copy()])
+            book = (episodes.prev_dist, episodes.min_separation, episodes.landed, episodes.landing_error)
+            records.append([obs.copy(), episodes.steps.copy(), *(np.array(a, copy=True) for a in book)])
     return sim, records, events
 
 

@@ -12,8 +12,33 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices,
 from marlander_lite.envs.options import centralised_action_space, centralised_observation_space, policy_input
 from marlander_lite.episodes import LandingEpisodes, Simulator
 from marlander_lite.sensing import SensingConfig
+from marlander_lite.task import compiled_kernels
 
 _NO_INFO = MappingProxyType({})
+
+
+def episode_summaries(
+    env_ids: np.ndarray, landed: np.ndarray, landing_error: np.ndarray, landing_time: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """For the ended envs ``env_ids`` ``(k,)``: the mean landing error over the drones that landed (m; NaN if none
+    did) and the time the last drone landed (s; NaN unless all did), each ``(k,)``. ``landed``, ``landing_error`` and
+    ``landing_time`` are ``(num_envs, N)`` records of :class:`~marlander_lite.episodes.StepOutcome`. The numpy lines
+    are the reference; with numba one compiled pass gives the same numbers (``task_kernels.episode_summaries``).
+    """
+    if compiled_kernels() is not None and landed.dtype == bool and landing_error.dtype == landing_time.dtype == float:
+        # Imported here: task_kernels imports marlander_lite.pointmass, whose envs import this module.
+        from marlander_lite import task_kernels
+
+        out = np.empty((len(env_ids), 2))
+        task_kernels.episode_summaries(np.asarray(env_ids, dtype=np.int64), landed, landing_error, landing_time, out)
+        return out[:, 0], out[:, 1]
+    landed = landed[env_ids]
+    count = np.maximum(landed.sum(axis=1), 1)
+    mean_error = np.where(landed.any(axis=1), np.where(landed, landing_error[env_ids], 0.0).sum(axis=1) / count, np.nan)
+    last_landing = np.where(
+        landed.all(axis=1), np.nanmax(np.where(landed, landing_time[env_ids], -1.0), axis=1), np.nan
+    )
+    return mean_error, last_landing
 
 
 class InProcessVecEnv(VecEnv):
@@ -92,13 +117,8 @@ class LandingVecEnv(InProcessVecEnv):
         infos: list[Any] = [_NO_INFO] * self.num_envs
         if done.any():
             ids = np.flatnonzero(done)
-            landed = outcome.landed[ids]
-            count = np.maximum(landed.sum(axis=1), 1)
-            mean_error = np.where(
-                landed.any(axis=1), np.where(landed, outcome.landing_error[ids], 0.0).sum(axis=1) / count, np.nan
-            )
-            last_landing = np.where(
-                landed.all(axis=1), np.nanmax(np.where(landed, outcome.landing_time[ids], -1.0), axis=1), np.nan
+            mean_error, last_landing = episode_summaries(
+                ids, outcome.landed, outcome.landing_error, outcome.landing_time
             )
             columns = zip(
                 ids.tolist(),

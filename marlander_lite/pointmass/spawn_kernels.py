@@ -106,6 +106,30 @@ def swarms_too_close(pos: np.ndarray, ids: np.ndarray, separation: float) -> np.
     return ids[min_separation(pos[ids]) < separation]
 
 
+@jit_kernel
+def place_plates(
+    env_ids: np.ndarray,
+    plate_pos: np.ndarray,
+    plate_vel: np.ndarray,
+    pad_offsets: np.ndarray,
+    plates: np.ndarray,
+    pads: np.ndarray,
+    pad_vel: np.ndarray,
+) -> None:
+    """The plates of the episodes ``env_ids`` at their start: the ``r``-th one's position ``plate_pos[r]`` and velocity
+    ``plate_vel[r]`` (``(k, 3)``, m and m/s) into ``plates``, its pads ``plate + pad_offsets`` ``(N, 3)`` into ``pads``
+    and their velocity into ``pad_vel`` (``(num_envs, N, 3)``): ``PointMassSwarm._update_platform``'s three numpy
+    lines, which scatter slowly into the simulator's Fortran-ordered arrays."""
+    n = pad_offsets.shape[0]
+    for r in range(len(env_ids)):
+        k = env_ids[r]
+        for c in range(3):
+            plates[k, c] = plate_pos[r, c]
+            for i in range(n):
+                pads[k, i, c] = plate_pos[r, c] + pad_offsets[i, c]
+                pad_vel[k, i, c] = plate_vel[r, c]
+
+
 def sample_spawn_positions(
     rng: np.random.Generator,
     z_lo: np.ndarray,
