@@ -531,6 +531,28 @@ def test_swarm_evaluate_pairs_starts_with_pads_when_asked_and_says_so(lander_fil
         main([*args, "--pad-assignment", "nearest", "--out", str(tmp_path / "bad")])
 
 
+def test_swarm_evaluate_flies_the_pad_spacing_asked_for_and_refuses_overlapping_pads(
+    lander_file, tmp_path, capsys, monkeypatch
+):
+    from marlander_lite.cli import main
+    from marlander_lite.swarm import evaluation
+
+    flown = []
+    fly = evaluation.evaluate_cell
+    monkeypatch.setattr(evaluation, "evaluate_cell", lambda *a, **k: flown.append(a[7]) or fly(*a, **k))
+    args = ["swarm", "evaluate", "--shared", str(lander_file), "--sizes", "4", "--trials", "1", "--num-envs", "1"]
+    assert main([*args, "--pad-spacing", "0.4", "--out", str(tmp_path), "--stem", "wide"]) == 0
+    assert "--pad-spacing 0.4" in (tmp_path / "wide.md").read_text()
+    offsets = flown[0].geometry.pad_offsets(4)  # a 2 x 2 grid, neighbours 0.4 m apart
+    assert min(np.linalg.norm(a - b) for i, a in enumerate(offsets) for b in offsets[i + 1 :]) == pytest.approx(0.4)
+    assert main([*args, "--out", str(tmp_path), "--stem", "default"]) == 0
+    assert flown[1].geometry.pad_spacing == 0.25 and "--pad-spacing" not in (tmp_path / "default.md").read_text()
+    with pytest.raises(SystemExit):
+        main([*args, "--pad-spacing", "0.1", "--out", str(tmp_path / "bad")])
+    assert "Pads overlap: pad_spacing 0.1 m is less than twice the pad radius" in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists() and len(flown) == 2
+
+
 # ---------------------------------------------------------------------------- learning
 
 

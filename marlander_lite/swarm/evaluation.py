@@ -380,6 +380,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--speeds", type=float, nargs="+", default=[None], help="tool speeds of a moving platform")
     parser.add_argument("--inclinations", type=float, nargs="+", default=[0.0], help="plate tilts (degrees)")
     parser.add_argument(
+        "--pad-spacing",
+        type=float,
+        help=f"distance between neighbouring pads (m; default {PlateGeometry.pad_spacing}, the plate grows to fit)",
+    )
+    parser.add_argument(
         "--pad-assignment",
         default="fixed",
         choices=PAD_ASSIGNMENTS,
@@ -430,8 +435,9 @@ def run(args: argparse.Namespace, program: str = "marlander swarm evaluate") -> 
     options = {"controller": "firmware"} if args.firmware else dict(HELD_OUT_TRACKER) if args.held_out else {}
     tracker = " (firmware tracker)" if args.firmware else " (held-out tracker)" if args.held_out else ""
     settings = parse_settings(args.filter_settings or "")
+    spacing = {} if getattr(args, "pad_spacing", None) is None else {"pad_spacing": args.pad_spacing}
     platforms = [
-        PlatformConfig(kind=args.platform, speed=speed, geometry=PlateGeometry(inclination_deg=tilt))
+        PlatformConfig(kind=args.platform, speed=speed, geometry=PlateGeometry(inclination_deg=tilt, **spacing))
         for speed in args.speeds
         for tilt in args.inclinations
     ]
