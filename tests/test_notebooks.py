@@ -703,6 +703,21 @@ def check_09(shown: Shown) -> None:
     assert first_number(unpaired["collisions % [95 % CI]"]) > 10 * first_number(alone["collisions % [95 % CI]"])
     for stem in ("crazyflie_firmware_paired", "crazyflie_pid_paired", "crazyflie_held_out_paired"):
         assert f"**{stem}**" in shown_tables
+    # Pad spacing: the same policy alone, pads 0.35 m apart, meets the swarm targets the 0.25 m grid misses alone.
+    assert "**pads 0.25 m apart**" in shown_tables and "**pads 0.35 m apart**" in shown_tables
+    wide_point_mass, wide_pybullet = (
+        {
+            row["N"]: row
+            for row in markdown_rows(shown_tables.split(f"**{stem}**", 1)[1].split("**", 1)[0])
+            if row["controller"] == "shared"
+        }
+        for stem in ("scaling_paired_spacing_35cm", "crazyflie_firmware_paired_spacing_35cm")
+    )
+    assert first_number(wide_point_mass["8"]["success % [95 % CI]"]) >= 95.0
+    assert first_number(wide_point_mass["16"]["success % [95 % CI]"]) >= 90.0
+    assert all(first_number(wide_point_mass[n]["collisions % [95 % CI]"]) <= 1.0 for n in ("8", "16"))
+    assert first_number(wide_pybullet["8"]["success % [95 % CI]"]) >= 90.0
+    assert first_number(paired_table[("shared", "16")]["success % [95 % CI]"]) < 90.0  # the 0.25 m grid, alone
     # Touchdown speeds: 40 ms of latency pushes lone drones of the shipped policy over the 0.5 m/s limit, which the
     # filter with settled_sink_limit 0.4 keeps them under.
     over = {
