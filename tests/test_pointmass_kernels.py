@@ -87,7 +87,7 @@ def test_compiled_policy_input_is_numpys_cast_to_the_last_bit(monkeypatch, order
     assert rows[0, 0, 0] == 1.0 and np.signbit(rows[0, 0, 1]) and rows[0, 0, 2] == 0.0
 
 
-@pytest.mark.parametrize("num_drones", [1, 2, 3, 8, 9, 16, 33])
+@pytest.mark.parametrize("num_drones", [1, 2, 3, 8, 9, 16, 33, 128, 200])
 @pytest.mark.parametrize("order", ["C", "F"])
 def test_compiled_episode_summaries_are_the_reference_to_the_last_bit(monkeypatch, num_drones, order):
     """The infos' ``landing_error`` (mean over the landed drones) and ``landing_time`` (the last drone's): numpy's row

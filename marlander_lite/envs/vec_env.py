@@ -25,7 +25,9 @@ def episode_summaries(
     ``landing_time`` are ``(num_envs, N)`` records of :class:`~marlander_lite.episodes.StepOutcome`. The numpy lines
     are the reference; with numba one compiled pass gives the same numbers (``task_kernels.episode_summaries``).
     """
-    if compiled_kernels() is not None and landed.dtype == bool and landing_error.dtype == landing_time.dtype == float:
+    # The kernel adds a row as numpy does up to 128 drones; beyond that numpy splits the row further.
+    kernel_fits = landed.shape[1] <= 128 and landed.dtype == bool and landing_error.dtype == landing_time.dtype == float
+    if compiled_kernels() is not None and kernel_fits:
         # Imported here: task_kernels imports marlander_lite.pointmass, whose envs import this module.
         from marlander_lite import task_kernels
 
