@@ -718,6 +718,8 @@ def check_09(shown: Shown) -> None:
     assert all(first_number(wide_point_mass[n]["collisions % [95 % CI]"]) <= 1.0 for n in ("8", "16"))
     assert first_number(wide_pybullet["8"]["success % [95 % CI]"]) >= 90.0
     assert first_number(paired_table[("shared", "16")]["success % [95 % CI]"]) < 90.0  # the 0.25 m grid, alone
+    for stem in ("scaling_paired_filter_spacing_35cm", "crazyflie_firmware_paired_filter_spacing_35cm"):
+        assert f"**{stem}**" in shown_tables
     # Touchdown speeds: 40 ms of latency pushes lone drones of the shipped policy over the 0.5 m/s limit, which the
     # filter with settled_sink_limit 0.4 keeps them under.
     over = {
