@@ -424,21 +424,26 @@ def test_bad_shared_training_configs_are_refused():
     [
         ("shared-quick-paired-stage4", "shared-quick-paired", "shared-quick-drone-ends"),
         ("shared-quick-paired", "shared-quick-paired-soft", "shared-quick-paired-stage4"),
+        ("shared-quick-cone2", "shared-quick-cone2", "shared-quick-paired"),
+        ("shared-quick-cone2-seed1", "shared-quick-cone2", "shared-quick-paired"),
+        ("shared-quick-cone2-seed2", "shared-quick-cone2", "shared-quick-paired"),
     ],
 )
 def test_shipped_paired_runs_are_their_presets(run, preset, continues):
-    """Each stage's recorded config is its preset as it is now (the stage it continues aside), and the shipped
-    ``shared-quick-paired`` policy is the last stage's export."""
+    """Each stage's recorded config is its preset as it is now (the stage it continues and the seed aside), and each
+    shipped policy of these stages is its run's export."""
     import json
 
     record = json.loads((ROOT / "data/runs" / run / "config.json").read_text())
     trained = SharedTrainConfig.from_dict(record["train"])
-    assert trained == SHARED_PRESETS[preset].replace(init_from=trained.init_from)
+    assert trained == SHARED_PRESETS[preset].replace(init_from=trained.init_from, seed=trained.seed)
+    assert trained.seed == (int(run[-1]) if "-seed" in run else 0)
+    assert trained.init_from in (f"data/runs/{continues}", None) or continues in str(record.get("note", ""))
     assert record["task"]["pad_assignment"] == "shortest"
     assert (ROOT / "data/runs" / continues / "model.zip").is_file()
     assert (ROOT / "data/runs" / run / "model.zip").is_file()
-    if run == "shared-quick-paired":
-        shipped = (ROOT / "data/policies/shared-quick-paired.safetensors").read_bytes()
+    if run != "shared-quick-paired-stage4":  # an intermediate stage, not shipped as a policy
+        shipped = (ROOT / "data/policies" / f"{run}.safetensors").read_bytes()
         assert shipped == (ROOT / "data/runs" / run / "policy.safetensors").read_bytes()
 
 

@@ -183,6 +183,15 @@ SHARED_PRESETS["shared-quick-paired-soft"] = SHARED_PRESETS["shared-quick-paired
     # its drones, which at N = 8 fails one swarm in ten; a landing counted in training only below 0.15 m/s.
     task={**SHARED_PRESETS["shared-quick-paired"].task, "training_touchdown_speed": 0.15},
 )
+SHARED_PRESETS["shared-quick-cone2"] = SHARED_PRESETS["shared-quick-paired-soft"].replace(
+    # Stage 6 (``--init-from`` a shared-quick-paired run). Through PyBullet's trackers the drones that fail come down
+    # beside their pads: on a plate tilted 15 degrees the rims of 16-drone swarms touch it 11-15 cm uphill of the pad.
+    # An approach cone of 2 m of height per metre from the pad (1 before, as the quick preset's cone2) keeps them
+    # higher until they are over it; a smaller step size falling to zero keeps the landing stage 5 learnt.
+    learning_rate=1e-4,
+    lr_schedule="linear",
+    task={**SHARED_PRESETS["shared-quick-paired-soft"].task, "approach_cone_slope": 2.0},
+)
 SHARED_PRESETS["shared-quick-memory"] = SHARED_PRESETS["shared-quick-paired-soft"].replace(
     # Stage 6 (``--init-from`` a shared-quick-paired run; its network is widened, swarm/memory.py). Under 20-60 ms of
     # latency the shipped policy touches down too fast (docs/scaling.md, "Why the touchdowns are not soft"): from its
@@ -196,7 +205,8 @@ does so on swarms of 2, 4 and 8 with neighbours sensed within 0.2 m only (the sh
 ``shared-quick-shielded`` trains that one on with the safety filter as a shield and a penalty on its corrections;
 ``shared-quick-drone-ends`` trains it on with per-drone episode ends; ``shared-quick-paired`` trains that one on with
 starts paired with pads by the shortest pairing and a stricter touchdown speed, ``shared-quick-paired-soft`` that one
-with a stricter one still (the shipped ``shared-quick-paired`` policy); ``shared-quick-memory`` continues that one with
+with a stricter one still (the shipped ``shared-quick-paired`` policy); ``shared-quick-cone2`` continues that one with a
+steeper approach cone (the shipped ``shared-quick-cone2`` policy); ``shared-quick-memory`` continues that one with
 its previous command in each drone's input (:mod:`~marlander_lite.swarm.memory`; tried, not shipped).
 N = 16 is never seen in training."""
 
