@@ -17,7 +17,8 @@ Run::
 ``--pad-assignment shortest`` hands the pads out at take-off by the shortest pairing (the config's
 ``pad_assignment``), as a policy trained so (``shared-quick-paired``) expects.
 
-The config's simulation platform, its take-off height and its safety filter can be changed on the command line, e.g.
+The config's simulation platform (its motion, speed and inclination), its take-off height and its safety filter can be
+changed on the command line, e.g. the 8-drone lab's plate tilted 15 degrees: ``--inclination 15``; or
 the plate shuttling along a line at 0.4 m/s with the lab guide's moving-pad settings::
 
     python benchmarks/rehearsal_campaign.py --config marlander_lite/deploy/example_lab.yaml \\
@@ -56,6 +57,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--platform", default=None, help="simulation.platform instead of the config's")
     parser.add_argument("--platform-speed", type=float, default=None, help="simulation.platform_speed (m/s)")
     parser.add_argument(
+        "--inclination", type=float, default=None, help="simulation.inclination_deg: the plate tilts this (degrees)"
+    )
+    parser.add_argument("--tilt-axis", type=float, default=None, help="simulation.tilt_axis_deg (degrees from +x)")
+    parser.add_argument(
         "--mocap-latency", type=float, default=None, help="simulation.latency_s: how late poses arrive (s)"
     )
     parser.add_argument("--takeoff-height", type=float, default=None, help="limits.takeoff_height (m)")
@@ -70,15 +75,19 @@ def main(argv: list[str] | None = None) -> None:
     if args.mocap_latency is not None and not 0.0 <= args.mocap_latency <= 1.0:
         parser.error(f"--mocap-latency must be from 0 to 1 s, got {args.mocap_latency}")
     lab = load_lab_config(args.config)
-    simulation = {"platform": args.platform, "platform_speed": args.platform_speed, "latency_s": args.mocap_latency}
+    simulation = {
+        "platform": args.platform,
+        "platform_speed": args.platform_speed,
+        "latency_s": args.mocap_latency,
+        "inclination_deg": args.inclination,
+        "tilt_axis_deg": args.tilt_axis,
+    }
     try:
         safety_filter = lab.safety_filter.with_settings(parse_settings(args.filter_settings))
+        changed = {k: v for k, v in simulation.items() if v is not None}
+        lab = lab.replace(simulation=dataclasses.replace(lab.simulation, **changed), safety_filter=safety_filter)
     except ValueError as error:  # ConfigError is one
-        parser.error(f"--filter-settings: {error}")
-    lab = lab.replace(
-        simulation=dataclasses.replace(lab.simulation, **{k: v for k, v in simulation.items() if v is not None}),
-        safety_filter=safety_filter,
-    )
+        parser.error(str(error))
     if args.no_filter:
         lab = lab.replace(safety_filter=dataclasses.replace(lab.safety_filter, enabled=False))
     if args.pad_assignment is not None:

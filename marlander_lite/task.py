@@ -510,13 +510,14 @@ def touchdown_limits(pad_radius: float, config: TaskConfig) -> tuple[float, floa
 def pad_frame_errors(rel_pos: np.ndarray, normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """A drone's position relative to its pad, in the pad's frame: ``(height, offset)``, each ``(...)`` m.
 
-    ``height = p . n`` is measured along the pad normal ``n`` ``(3,)`` and ``offset = |p - (p . n) n|`` within
-    the pad plane; on a level pad (``n = e_z``) they are ``p_z`` and the horizontal distance. For an inclined
-    plate (beyond the paper, ``platforms.PlateGeometry.inclination_deg``) the offset is what
-    :func:`touchdown_outcome` should compare with the pad radius as its ``horizontal_error``.
+    ``height = p . n`` is measured along the pad normal ``n`` (one ``(3,)`` for every row, or one per row,
+    ``(..., 3)`` like ``rel_pos``) and ``offset = |p - (p . n) n|`` within the pad plane; on a level pad
+    (``n = e_z``) they are ``p_z`` and the horizontal distance. For an inclined plate (beyond the paper,
+    ``platforms.PlateGeometry.inclination_deg``) the offset is what :func:`touchdown_outcome` should compare
+    with the pad radius as its ``horizontal_error``.
     """
     n = np.asarray(normal, dtype=float)
-    height = rel_pos @ n
+    height = rel_pos @ n if n.ndim == 1 else np.einsum("...k,...k->...", rel_pos, n)
     offset_sq = np.einsum("...k,...k->...", rel_pos, rel_pos) - height * height
     return height, np.sqrt(np.maximum(offset_sq, 0.0))
 

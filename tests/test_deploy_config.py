@@ -89,6 +89,11 @@ def broken(example: dict, change) -> dict:
             r"^simulation.platform: Input should be 'static-floor', 'static-elevated'",
         ),
         (lambda d: d["simulation"].update(start_positions=[[0, 0]]), "one \\(x, y\\) per drone"),
+        (
+            lambda d: d["simulation"].update(inclination_deg=90),
+            r"^simulation.inclination_deg: Input should be less than 90",
+        ),
+        (lambda d: d["safety"].update(max_pad_tilt_deg=0), r"^safety.max_pad_tilt_deg: Input should be greater than 0"),
         # strict types: no text for numbers, no 0/1 for booleans, no number for a name
         (lambda d: d["limits"].update(max_speed="0.5"), r"^limits.max_speed: Input should be a valid number"),
         (lambda d: d["crazyflie"].update(arm=1), r"^crazyflie.arm: Input should be a valid boolean"),

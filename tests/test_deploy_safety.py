@@ -266,6 +266,7 @@ def test_arming_refuses_a_pad_the_fence_guard_would_keep_its_drone_from():
         vel=np.zeros((2, 3)),
         quat=np.array([[0.0, 0.0, 0.0, 1.0]] * 2),
         pad_pos=np.array([[soft_x - 0.03, 0.0, 0.0], [soft_x - 0.10, 0.5, 0.0]]),
+        pad_normal=np.array([[0.0, 0.0, 1.0]] * 2),
         drone_age=np.zeros(2),
         pad_age=np.zeros(2),
         drone_invalid=np.zeros(2, dtype=bool),

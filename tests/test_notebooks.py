@@ -43,6 +43,7 @@ EXPECTED_TEXT = {
         "fault none: armed=True, on pad=[True, True]",
         "Pads paired with the drones by the shortest paths: cf1 -> ",
         "on their pads: 8 of 8; safe: True",
+        "tilted 15 degrees: on their pads: 8 of 8; safe: True",
     ],
     "08_transfer.ipynb": ["budget: small", "### quick-cpu", "| floor | "],
     "09_scaling.ipynb": ["budget: small", "| shared | static-floor | 16 |", "| shared-filter | static-floor | 16 |"],

@@ -19,12 +19,16 @@ time since its last accepted pose, which the safety rules compare with their thr
 
 Pads are found from the body that carries them: pad top centre ``c = p + R(q) o`` for the
 pad's offset ``o`` in the body frame, and its velocity ``v + omega x R(q) o`` (rigid body).
-The goal point is ``c`` raised by ``TaskConfig.landed_height``, exactly as in the simulators.
+The pad's normal is the body's z axis, ``n = R(q) e_z``, and the goal point is ``c`` raised by
+``TaskConfig.landed_height`` along it, exactly as in the simulators: straight up on a level plate, and on a
+plate tilted by a manipulator (beyond the paper, ``platforms.PlateGeometry.inclination_deg``) along its
+tilted normal. The body's frame must therefore have its z axis perpendicular to the pad (the pre-flight
+check refuses a pad tilted more than ``safety.max_pad_tilt_deg``).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -168,7 +172,8 @@ class SwarmEstimate:
     pad_vel: np.ndarray
     """Each drone's pad velocity ``(N, 3)`` m/s."""
     goal: np.ndarray
-    """Goal points ``(N, 3)`` m: pad centre raised by ``landed_height`` (as in the simulators)."""
+    """Goal points ``(N, 3)`` m: pad centre raised by ``landed_height`` along the pad normal (as in the
+    simulators)."""
     drone_age: np.ndarray
     """Seconds since each drone's last accepted pose ``(N,)`` (inf if never seen)."""
     pad_age: np.ndarray
@@ -177,6 +182,13 @@ class SwarmEstimate:
     """True where the drone's latest pose was rejected ``(N,)``."""
     pad_invalid: np.ndarray
     """True where the pad body's latest pose was rejected ``(N,)``."""
+    pad_normal: np.ndarray = field(default=None)  # type: ignore[assignment]
+    """Unit normal of each drone's pad ``(N, 3)``, world frame: its body's z axis (NaN until the body has been
+    seen). Left out, ``+z`` for every pad: level pads."""
+
+    def __post_init__(self) -> None:
+        if self.pad_normal is None:
+            self.pad_normal = np.tile([0.0, 0.0, 1.0], (len(self.pos), 1))
 
     @property
     def age(self) -> np.ndarray:
@@ -200,7 +212,7 @@ class SwarmEstimator:
         self._drone_idx = np.array([self.tracks.index[n] for n in self.drones])
         self._pad_idx = np.array([self.tracks.index[p.body] for p in pads])
         self.pad_offsets = np.array([p.offset for p in pads], dtype=float)
-        self._lift = np.array([0.0, 0.0, landed_height])
+        self.landed_height = landed_height
 
     def ingest(self, frames: list[PoseFrame]) -> list[tuple[str, str]]:
         """Feed frames (oldest first); returns ``(body, reason)`` for every rejected pose."""
@@ -219,6 +231,7 @@ class SwarmEstimator:
         body_pose = tr.pose[p]
         arm = rotate_vector(body_pose[:, 3:], self.pad_offsets)  # NaN until the body has been seen
         pad_pos = body_pose[:, :3] + arm
+        normal = rotate_vector(body_pose[:, 3:], np.array([0.0, 0.0, 1.0]))
         age = tr.age(now)
         return SwarmEstimate(
             t=now,
@@ -228,9 +241,10 @@ class SwarmEstimator:
             ang_vel=tr.ang_vel[d],
             pad_pos=pad_pos,
             pad_vel=tr.vel[p] + cross(tr.ang_vel[p], arm),
-            goal=pad_pos + self._lift,
+            goal=pad_pos + self.landed_height * normal,
             drone_age=age[d],
             pad_age=age[p],
             drone_invalid=tr.invalid[d],
             pad_invalid=tr.invalid[p],
+            pad_normal=normal,
         )

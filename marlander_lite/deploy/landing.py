@@ -5,7 +5,9 @@ Pure functions of a :class:`SwarmEstimate` decide; :class:`LandingControl`, the 
 over to the high-level commander, lands them, ends their landings) and keeps what it knows in the
 mission's :class:`~marlander_lite.deploy.mission_state.Landings`. Heights are world z (m);
 ``landed_height`` is the height of a drone's body origin above a surface it rests on
-(``TaskConfig.landed_height``).
+(``TaskConfig.landed_height``). Touchdowns are judged in each pad's frame, as the simulators judge them:
+the height along the pad normal and the offset within the pad plane (on a level pad, the height above
+the goal and the horizontal distance); on a tilted plate the surface under a drone is the plate's plane.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from marlander_lite.deploy.config import LimitsConfig
 from marlander_lite.deploy.estimation import SwarmEstimate
 from marlander_lite.deploy.mission_state import PlannedLanding
 from marlander_lite.deploy.modes import AIRBORNE, FLYING, DronePhase, MissionMode
+from marlander_lite.task import pad_frame_errors
 
 if TYPE_CHECKING:
     from marlander_lite.deploy.config import LabConfig
@@ -51,8 +54,11 @@ class Contacts:
     """Down on the floor or the plate off its pad: a crash in training."""
     rel: np.ndarray
     """Position relative to the goal point ``(N, 3)`` m."""
-    horizontal: np.ndarray
-    """Horizontal distance from the pad centre (m)."""
+    height: np.ndarray
+    """Height above the goal point along the pad normal ``(N,)`` m (``rel[:, 2]`` on a level pad)."""
+    offset: np.ndarray
+    """Distance from the pad centre within the pad plane ``(N,)`` m (the horizontal distance on a level pad): the
+    landing error."""
     rel_speed: np.ndarray
     """Speed relative to the pad (m/s)."""
 
@@ -62,14 +68,24 @@ class Contacts:
         return self.landed | self.hard | self.off_pad
 
 
+def plane_heights(xy: np.ndarray, est: SwarmEstimate) -> np.ndarray:
+    """Height ``(N,)`` m of each pad's plane at the horizontal point ``xy`` ``(2,)`` m: the pad's own height on a
+    level pad; on a tilted one ``c_z - (n_x (x - c_x) + n_y (y - c_y)) / n_z`` for its centre ``c`` and normal
+    ``n``."""
+    n, d = est.pad_normal, xy - est.pad_pos[:, :2]
+    return est.pad_pos[:, 2] - (n[:, 0] * d[:, 0] + n[:, 1] * d[:, 1]) / n[:, 2]
+
+
 def surface_below(pos: np.ndarray, est: SwarmEstimate, floor_z: float) -> tuple[float, int | None]:
-    """Height of the surface under the point ``pos`` (m) and the pad it is over (None: the floor)."""
+    """Height of the surface under the point ``pos`` (m) and the pad it is over (None: the floor): the plane of the
+    nearest pad within ``SURFACE_RADIUS`` horizontally whose plane is below ``pos``."""
     if np.isfinite(pos).all():
         gaps = np.hypot(*(est.pad_pos[:, :2] - pos[:2]).T)
-        near = np.flatnonzero((gaps < SURFACE_RADIUS) & (est.pad_pos[:, 2] < pos[2]))
+        heights = plane_heights(pos[:2], est)
+        near = np.flatnonzero((gaps < SURFACE_RADIUS) & (heights < pos[2]))
         if len(near):
             j = int(near[np.argmin(gaps[near])])
-            return float(est.pad_pos[j, 2]), j
+            return float(heights[j]), j
     return float(floor_z), None
 
 
@@ -83,13 +99,13 @@ def contacts(
 ) -> Contacts:
     """Classify the ``candidates`` ``(N,)`` (flying drones with fresh data) like ``task.touchdown_outcome``."""
     rel = est.pos - est.goal
-    horizontal = np.hypot(rel[:, 0], rel[:, 1])
+    height, offset = pad_frame_errors(rel, est.pad_normal)
     rel_speed = np.linalg.norm(est.vel - est.pad_vel, axis=-1)
-    on_pad = candidates & (horizontal <= pad_radius) & (rel[:, 2] <= limits.touchdown_height)
+    on_pad = candidates & (offset <= pad_radius) & (height <= limits.touchdown_height)
     slow = rel_speed <= limits.touchdown_speed
     surface = np.array([surface_below(p, est, floor_z)[0] for p in est.pos])
     down = candidates & ~on_pad & (est.pos[:, 2] <= surface + landed_height + limits.touchdown_height)
-    return Contacts(on_pad & slow, on_pad & ~slow, down, rel, horizontal, rel_speed)
+    return Contacts(on_pad & slow, on_pad & ~slow, down, rel, height, offset, rel_speed)
 
 
 def lingering(
@@ -97,7 +113,7 @@ def lingering(
 ) -> np.ndarray:
     """Drones hovering just above their slow pads, within half the pad radius ``(N,)``: hand-over candidates."""
     pad_speed = np.linalg.norm(est.pad_vel, axis=-1)
-    near = candidates & (c.rel[:, 2] <= limits.handover_height) & (c.horizontal <= pad_radius / 2)
+    near = candidates & (c.height <= limits.handover_height) & (c.offset <= pad_radius / 2)
     return near & (c.rel_speed <= HANDOVER_MAX_REL_SPEED) & (pad_speed <= HANDOVER_MAX_PAD_SPEED)
 
 
@@ -160,7 +176,7 @@ class LandingControl:
             self._set_phase(i, DronePhase.DOWN)
             self.book.commands[i] = {"kind": "stop"}
             if c.landed[i]:
-                self._landed(i, c.horizontal[i], "touched its pad")
+                self._landed(i, c.offset[i], "touched its pad")
             elif c.hard[i]:
                 message = f"{self.names[i]} hit its pad at {c.rel_speed[i]:.2f} m/s (a crash in training): motors off"
                 self.event("hard_touchdown", message, i)
@@ -172,10 +188,10 @@ class LandingControl:
         land.near_since[~near] = np.nan
         land.near_since[near & np.isnan(land.near_since)] = self.t
         for i in np.flatnonzero(near & (self.t - land.near_since >= self.lab.limits.handover_dwell_s)):
-            duration = max(0.5, (c.rel[i, 2] + self.task.landed_height) / HANDOVER_DESCENT_SPEED)
-            self._land(i, est, duration=duration, surface=float(est.pad_pos[i, 2]))
+            duration = max(0.5, (c.height[i] + self.task.landed_height) / HANDOVER_DESCENT_SPEED)
+            self._land(i, est, duration=duration, surface=float(plane_heights(est.pos[i, :2], est)[i]))
             land.handover[i] = True
-            message = f"{self.names[i]} hovers {c.rel[i, 2] * 100:.1f} cm above its pad: high-level landing on it"
+            message = f"{self.names[i]} hovers {c.height[i] * 100:.1f} cm above its pad: high-level landing on it"
             self.event("handover", message, i)
 
     def _landed(self, i: int, error: float, how: str) -> None:
@@ -185,12 +201,29 @@ class LandingControl:
         self.event("touchdown", f"{self.names[i]} {how} {error * 100:.1f} cm from the centre: motors off", i)
 
     def _landings(self, est: SwarmEstimate) -> None:
-        """Stop the motors of landing drones once they rest (or when their landing overran)."""
+        """Stop the motors of landing drones once they rest (or when their landing overran); a drone handed over above
+        its pad stops them when it touches the pad, as under the policy."""
         land, margin = self.landings, self.lab.safety.land_timeout_margin_s
         stale = self.lab.safety.stale_hover_s
+        handed = np.zeros(self.n, dtype=bool)
+        handed[[i for i in land.planned if land.handover[i] and self.phase[i] == DronePhase.LANDING]] = True
+        if handed.any():
+            fresh = handed & ~est.invalid & (est.age <= stale)
+            touched = contacts(
+                est, fresh, land.pad_radius, self.lab.limits, self.task.landed_height, self.lab.geofence.z[0]
+            )
         for i, (t_land, duration, surface) in list(land.planned.items()):
             if self.phase[i] != DronePhase.LANDING:
                 del land.planned[i]
+                continue
+            if handed[i] and touched.landed[i]:
+                # Its planner would press it on down into the pad: on a tilted one, uphill rim first, until it
+                # tips and slides off. Motors off within touchdown_height of the goal, as a policy touchdown.
+                self.link.stop_motors(i)
+                self._set_phase(i, DronePhase.DOWN)
+                self.book.commands[i] = {"kind": "stop"}
+                del land.planned[i]
+                self._landed(i, touched.offset[i], "touched its pad")
                 continue
             below, pad = surface_below(est.pos[i], est, self.lab.geofence.z[0])
             if below < surface - REST_HEIGHT and surface_known(est, i, stale):
@@ -208,7 +241,7 @@ class LandingControl:
                 self._set_phase(i, DronePhase.DOWN)
                 self.book.commands[i] = {"kind": "stop"}
                 del land.planned[i]
-                error = float(np.hypot(*(est.pos[i, :2] - est.pad_pos[i, :2])))
+                error = float(pad_frame_errors(est.pos[i] - est.goal[i], est.pad_normal[i])[1])
                 if land.handover[i] and resting and error <= land.pad_radius[i]:
                     self._landed(i, error, "rests on its pad")
                 elif resting:

@@ -323,6 +323,13 @@ class SafetyMonitor:
                     f"fence guard holds drones that far inside it, so {name} could not reach its pad. Move the pad "
                     "inwards or widen the geofence."
                 )
+            pad_tilt = float(np.degrees(np.arccos(np.clip(est.pad_normal[i, 2], -1.0, 1.0))))
+            if pad_tilt > cfg.max_pad_tilt_deg:  # NaN (pad unseen) is reported above
+                problems.append(
+                    f"pad of {name} is tilted {pad_tilt:.0f} degrees (limit {cfg.max_pad_tilt_deg}): its normal is the "
+                    f"z axis of body {pad!r}. If the plate is not tilted that far, define the body with its z axis "
+                    "perpendicular to the pads; otherwise raise safety.max_pad_tilt_deg"
+                )
             speed = float(np.linalg.norm(est.vel[i]))
             if speed > cfg.arming_max_speed:
                 problems.append(f"{name} moves at {speed:.2f} m/s (limit {cfg.arming_max_speed})")

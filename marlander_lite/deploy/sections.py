@@ -30,7 +30,7 @@ from marlander_lite.deploy.schema import (
     check,
     validate,
 )
-from marlander_lite.platforms import PLATFORM_KINDS, PlatformKind
+from marlander_lite.platforms import MAX_INCLINATION_DEG, PLATFORM_KINDS, PlatformKind
 from marlander_lite.simulators import SIMULATORS, SimulatorName
 from marlander_lite.swarm.safety_filter import SafetyFilterConfig
 
@@ -239,6 +239,11 @@ class SafetyConfig:
     """Drones must be roughly level before take-off (degrees)."""
     arming_min_separation: Annotated[Real, Field(ge=0, le=2)] = 0.25
     """Drones must be at least this far apart before take-off (m)."""
+    max_pad_tilt_deg: Annotated[Real, Field(gt=0, lt=90)] = 20.0
+    """Every pad's normal (the z axis of the body carrying it) must be within this of vertical before take-off
+    (degrees). The shipped policies are measured on plates tilted up to 15 degrees (``docs/scaling.md``); a pad
+    tilted far more is often a rigid body whose z axis is not the pad normal (``docs/lab_guide.md``, "Tilted
+    plates")."""
     land_timeout_margin_s: Annotated[Real, Field(ge=0.5, le=30)] = 3.0
     """A landing that has not ended this long after its planned duration ends with motors off (s)."""
     tumble_tilt_deg: Annotated[Real, Field(ge=30, le=90)] = 60.0
@@ -385,6 +390,11 @@ class SimulationConfig:
     """Platform motion, one of ``marlander_lite.platforms.PLATFORM_KINDS``."""
     platform_speed: Annotated[Real, Field(gt=0, le=2)] | None = None
     """Tool speed of a moving platform (m/s)."""
+    inclination_deg: Annotated[Real, Field(ge=0, lt=MAX_INCLINATION_DEG)] = 0.0
+    """The simulated plate tilts by this (degrees; beyond the paper, ``platforms.PlateGeometry.inclination_deg``).
+    The pads' offsets stay in the plate's frame; the simulated mocap reports the plate body tilted."""
+    tilt_axis_deg: Annotated[Real, Field(ge=-360, le=360)] = 0.0
+    """Direction of the horizontal axis the plate tilts about (degrees from +x; 0: its +y edge rises)."""
     start_positions: Annotated[tuple[tuple[Coordinate, Coordinate], ...], Field(max_length=64)] | None = None
     """Where the drones stand on the floor (x, y per drone, m); random when left out."""
     seed: Annotated[Whole, Field(ge=0, lt=2**32)] = 0

@@ -20,10 +20,12 @@ in the same tick), and a restart while another drone flies is logged as an event
 
 from __future__ import annotations
 
+import dataclasses
 import inspect
 from typing import Any, Literal, get_args
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from marlander_lite import task
 from marlander_lite.deploy.config import ConfigError, LabConfig, current_simulator_name
@@ -59,12 +61,13 @@ def world_task(lab: LabConfig) -> TaskConfig:
 
 
 def world_platform(lab: LabConfig) -> PlatformConfig:
-    """The simulated plate: the lab's platform motion, pad radius and pad layout.
+    """The simulated plate: the lab's platform motion, pad radius, pad layout and inclination.
 
     The layout is the first of :data:`~marlander_lite.platforms.PAD_LAYOUTS` (the default grid 0.25 m apart
     first, then each layout at the config's smallest pad spacing) whose pad offsets are the config's (within
     1 mm): a config written from ``PlateGeometry(...).pad_offsets(N)`` (``LabConfig.with_drones``) rehearses on
     that very plate. Otherwise the default grid, which :class:`SimulatedWorld` then refuses, saying its offsets.
+    The offsets are in the plate's own frame; ``simulation.inclination_deg`` then tilts the plate and its pads.
     """
     sim = lab.simulation
     pads = lab.drone_pads()
@@ -77,6 +80,10 @@ def world_platform(lab: LabConfig) -> PlatformConfig:
         if spacing >= 2 * radius:
             candidates += [PlateGeometry(pad_radius=radius, pad_spacing=spacing, layout=k) for k in PAD_LAYOUTS]
     geometry = next((g for g in candidates if np.abs(g.pad_offsets(len(pads)) - offsets).max() <= 1e-3), candidates[0])
+    if sim.inclination_deg:
+        geometry = dataclasses.replace(
+            geometry, inclination_deg=float(sim.inclination_deg), tilt_axis_deg=float(sim.tilt_axis_deg)
+        )
     return PlatformConfig(kind=sim.platform, speed=sim.platform_speed, geometry=geometry)
 
 
@@ -162,6 +169,10 @@ class SimulatedWorld:
         the velocity of a drone resting with its motors off."""
         rng = np.random.default_rng(lab.simulation.seed if seed is None else seed)
         simulator.reset(np.array([0]), rng)
+        self._plate_rotation = simulator.platform.geometry.rotation()
+        """Plate frame -> world ``(3, 3)``: the identity unless the plate is inclined."""
+        inclined = simulator.platform.geometry.inclination_deg != 0
+        self._plate_quat = Rotation.from_matrix(self._plate_rotation).as_quat() if inclined else IDENTITY_QUAT
         self._pad_body_offsets = self._check_pads()
         starts = self._start_positions(rng) if starts is None else np.array(starts, dtype=float)
         simulator.place(0, starts)
@@ -170,16 +181,18 @@ class SimulatedWorld:
 
     # ------------------------------------------------------------------ setup
     def _check_pads(self) -> dict[str, tuple[int, np.ndarray]]:
-        """Each pad body -> (a drone using it, its offset); refuses offsets that do not fit the simulated plate."""
+        """Each pad body -> (a drone using it, its offset in the world frame); refuses offsets that do not fit the
+        simulated plate."""
         pads = self.sim.state().pad_pos[0]
         bodies: dict[str, tuple[int, np.ndarray]] = {}
         for i, pad in enumerate(self.lab.drone_pads()):
-            offset = np.asarray(pad.offset, dtype=float)
+            offset = self._plate_rotation @ np.asarray(pad.offset, dtype=float)
             if pad.body in bodies:
                 j, other = bodies[pad.body]
                 mismatch = np.abs((pads[i] - offset) - (pads[j] - other)).max()
                 if mismatch > 1e-3:
-                    expected = np.round(self.sim.platform.geometry.pad_offsets(self.n), 4).tolist()
+                    level = dataclasses.replace(self.sim.platform.geometry, inclination_deg=0.0)
+                    expected = np.round(level.pad_offsets(self.n), 4).tolist()
                     raise ConfigError(
                         f"The pad offsets of body {pad.body!r} do not match the simulated plate (off by "
                         f"{mismatch * 1000:.1f} mm): its pads are {expected} from the plate's top-face centre, "
@@ -279,7 +292,7 @@ class SimulatedWorld:
     def _on_plate(self, state: Any) -> np.ndarray:
         """Drones resting on the plate ``(N,)``: the simulator says they touch their own pad, or they touch
         something while their centre is over the plate and at most ``PAD_REST_HEIGHT`` off the height they
-        rest at on it.
+        rest at on it (both in the plate's frame, which an inclined plate tilts).
 
         The second test matters on a moving plate: PyBullet reports a drone touching its pad and the plate
         around it as touching "something else", and without the friction that would carry it, the plate
@@ -289,8 +302,10 @@ class SimulatedWorld:
         pads = state.pad_pos[0]
         centre = pads.mean(axis=0)
         half = np.asarray(self.sim.platform.geometry.half_extents(self.n))
-        over = (np.abs(state.pos[0, :, :2] - centre[:2]) <= half).all(axis=1)
-        low = np.abs(state.pos[0, :, 2] - pads[:, 2] - self.sim.task.landed_height) <= PAD_REST_HEIGHT
+        in_plate = (state.pos[0] - centre) @ self._plate_rotation  # rows: plate-frame coordinates from the centre
+        over = (np.abs(in_plate[:, :2]) <= half).all(axis=1)
+        pad_height = (pads - centre) @ self._plate_rotation[:, 2]  # all pads sit at one height in the plate frame
+        low = np.abs(in_plate[:, 2] - pad_height - self.sim.task.landed_height) <= PAD_REST_HEIGHT
         return (contact == task.CONTACT_OWN_PAD) | ((contact != task.CONTACT_NONE) & over & low)
 
     def _start_motors(self, start: np.ndarray, want_on: np.ndarray) -> None:
@@ -311,7 +326,7 @@ class SimulatedWorld:
         for i, name in enumerate(self.lab.drone_names):
             poses[name] = np.concatenate((state.pos[0, i], state.quat[0, i]))
         for body, (i, offset) in self._pad_body_offsets.items():
-            poses[body] = np.concatenate((state.pad_pos[0, i] - offset, IDENTITY_QUAT))
+            poses[body] = np.concatenate((state.pad_pos[0, i] - offset, self._plate_quat))
         return poses
 
     def drone_positions(self) -> np.ndarray:
