@@ -172,3 +172,13 @@ def test_a_drone_handed_over_above_a_tilted_pad_lands_on_it():
     assert ("handover", 5) in events, events
     assert result.safe and all(result.mission.on_pad), result.summary()
     assert max(result.mission.landing_error) < 0.05
+
+
+def test_a_pad_normal_beyond_60_degrees_does_not_move_the_surface():
+    """A glitch in the plate body's attitude (its z axis nearly horizontal) must not put the plate far above or below
+    a drone: beyond 60 degrees the surface under it is the pad centre's height."""
+    pads = np.array([[-0.125, 0.0, 0.3], [0.125, 0.0, 0.3]])
+    est = tilted_estimate(pads + np.array([0.0, 0.0, 0.5]), pads)
+    est.pad_normal[0] = [0.0, -np.sin(np.radians(85.0)), np.cos(np.radians(85.0))]
+    height, pad = surface_below(np.array([-0.125, 0.1, 0.6]), est, 0.0)
+    assert pad == 0 and height == 0.3

@@ -68,12 +68,19 @@ class Contacts:
         return self.landed | self.hard | self.off_pad
 
 
+PLANE_MIN_NORMAL_Z = 0.5
+"""A pad whose normal is tilted more than 60 degrees (``n_z`` below this) counts as level under a drone: a plane that
+steep (or a glitch in the body's attitude) would put the surface under a drone far above or below the pad."""
+
+
 def plane_heights(xy: np.ndarray, est: SwarmEstimate) -> np.ndarray:
     """Height ``(N,)`` m of each pad's plane at the horizontal point ``xy`` ``(2,)`` m: the pad's own height on a
     level pad; on a tilted one ``c_z - (n_x (x - c_x) + n_y (y - c_y)) / n_z`` for its centre ``c`` and normal
-    ``n``."""
+    ``n`` (see :data:`PLANE_MIN_NORMAL_Z`)."""
     n, d = est.pad_normal, xy - est.pad_pos[:, :2]
-    return est.pad_pos[:, 2] - (n[:, 0] * d[:, 0] + n[:, 1] * d[:, 1]) / n[:, 2]
+    steep = ~(n[:, 2] >= PLANE_MIN_NORMAL_Z)  # NaN (unseen): the centre's height, NaN as well
+    rise = (n[:, 0] * d[:, 0] + n[:, 1] * d[:, 1]) / np.where(steep, 1.0, n[:, 2])
+    return est.pad_pos[:, 2] - np.where(steep, 0.0, rise)
 
 
 def surface_below(pos: np.ndarray, est: SwarmEstimate, floor_z: float) -> tuple[float, int | None]:
