@@ -6,6 +6,7 @@ as in the simulators (``episodes.LandingEpisodes``). The expected values are wor
 """
 
 import dataclasses
+import json
 from types import SimpleNamespace
 
 import numpy as np
@@ -13,6 +14,7 @@ import pytest
 
 from marlander_lite.deploy.config import EXAMPLE_CONFIG, EXAMPLE_CONFIG_8, load_lab_config
 from marlander_lite.deploy.estimation import EstimatorConfig, SwarmEstimate, SwarmEstimator
+from marlander_lite.deploy.flight_log import read_flight_log
 from marlander_lite.deploy.landing import contacts, surface_below
 from marlander_lite.deploy.pose_sources import PoseFrame
 from marlander_lite.deploy.rehearsal.run import rehearse
@@ -142,12 +144,23 @@ def test_the_simulated_mocap_reports_the_tilted_plate(simulator):
         world.close()
 
 
-def test_eight_drones_land_on_a_tilted_plate_in_the_rehearsal():
+def test_eight_drones_land_on_a_tilted_plate_in_the_rehearsal(tmp_path):
     """The 8-drone lab, its plate tilted 15 degrees, the steeper-cone shared policy through the safety filter (point
     mass, seed 0): every drone lands on its pad, and the error the loop reports from motion capture is the
-    simulator's own pad-frame offset to within 1.5 cm."""
+    simulator's own pad-frame offset to within 1.5 cm. The flight log keeps the tracked pad normals; a log written
+    before they were logged reads as level pads."""
     lab = tilted_lab().replace(pad_assignment="shortest")
-    result = rehearse(lab, "data/policies/shared-quick-cone2.safetensors", simulator="pointmass", seed=0)
+    log_path = tmp_path / "tilted.jsonl"
+    result = rehearse(
+        lab, "data/policies/shared-quick-cone2.safetensors", simulator="pointmass", seed=0, log_path=log_path
+    )
+    normals = read_flight_log(log_path).estimates("pad_normal")
+    np.testing.assert_allclose(normals[-1], np.tile(NORMAL, (8, 1)), atol=0.01)  # 0.002 quaternion noise
+    lines = [json.loads(line) for line in log_path.read_text().splitlines()]
+    for record in lines:
+        record.get("est", {}).pop("pad_normal", None)
+    log_path.write_text("\n".join(json.dumps(record) for record in lines) + "\n")
+    assert (read_flight_log(log_path).estimates("pad_normal") == [0.0, 0.0, 1.0]).all()
     assert result.safe and all(result.mission.on_pad), result.summary()
     # the pads were handed out again at take-off: each drone's pad is the nearest one, in the simulator's truth
     rel = result.final_positions[:, None] - result.pad_positions[None] - LANDED_HEIGHT * NORMAL

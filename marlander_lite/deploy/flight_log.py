@@ -12,7 +12,7 @@ A tick record::
     {"type": "tick", "tick": k, "t": s since start, "mode": ..., "phase": [per drone],
      "poses": {body: [x, y, z, qx, qy, qz, qw] or null (not in this tick's frames)},
      "age": {body: s since its last accepted pose},
-     "est": {"pos", "quat", "vel", "ang_vel", "pad_pos", "pad_vel", "goal"},   # per drone lists
+     "est": {"pos", "quat", "vel", "ang_vel", "pad_pos", "pad_vel", "goal", "pad_normal"},   # per drone lists
      "obs": N x 13 or null, "action": 3N or null,
      "cmd": [per drone: {"kind": "velocity"|"hover"|"takeoff"|"land"|"stop"|"none", ...}],
      "events": [{"t", "kind", "message", "drone"}], "compute_ms": time spent in the tick}
@@ -42,8 +42,9 @@ if TYPE_CHECKING:
 
 FORMAT = "marlander_lite.flight_log"
 VERSION = 1
-ESTIMATES = ("pos", "quat", "vel", "ang_vel", "pad_pos", "pad_vel", "goal")
-"""Fields of the estimate logged per tick, each per drone."""
+ESTIMATES = ("pos", "quat", "vel", "ang_vel", "pad_pos", "pad_vel", "goal", "pad_normal")
+"""Fields of the estimate logged per tick, each per drone (``pad_normal`` since 2026-11-29: logs written before have
+none, and their pads were judged level)."""
 
 
 def rounded(a: Any, decimals: int = 6) -> Any:
@@ -180,7 +181,10 @@ class FlightLog:
         return np.array([t["t"] for t in self.ticks])
 
     def estimates(self, key: str) -> np.ndarray:
-        """An estimate over time, e.g. ``"pos"`` -> ``(T, N, 3)``."""
+        """An estimate over time, e.g. ``"pos"`` -> ``(T, N, 3)``; ``"pad_normal"`` is ``+z`` in a log written
+        before it was logged (its pads were judged level)."""
+        if key == "pad_normal" and self.ticks and key not in self.ticks[0]["est"]:
+            return np.broadcast_to([0.0, 0.0, 1.0], (len(self.ticks), len(self.drones), 3)).copy()
         return np.array([t["est"][key] for t in self.ticks], dtype=float)
 
 

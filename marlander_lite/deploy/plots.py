@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from marlander_lite.deploy.flight_log import FlightLog
+from marlander_lite.task import pad_frame_errors
 
 DRONE_COLOURS = ("#56b4e9", "#ff7f0e")
 PAD_COLOURS = ("red", "blue")
@@ -69,7 +70,9 @@ def plot_trajectories(log: FlightLog, ax: Any = None, title: str | None = None) 
 
 
 def plot_timeline(log: FlightLog, axes: Any = None) -> Any:
-    """Height above the goal and horizontal distance to the pad per drone over time, with events.
+    """Height above the goal and distance from the pad centre per drone over time, with events, both in the pad's
+    frame (along its normal, within its plane; on a level pad the height and the horizontal distance), as the loop
+    judges touchdowns.
 
     Returns the two matplotlib ``Axes``.
     """
@@ -78,11 +81,11 @@ def plot_timeline(log: FlightLog, axes: Any = None) -> Any:
     if axes is None:
         _, axes = plt.subplots(2, 1, figsize=(7.0, 4.8), sharex=True)
     t = log.times()
-    rel = log.estimates("pos") - log.estimates("goal")
+    height, offset = pad_frame_errors(log.estimates("pos") - log.estimates("goal"), log.estimates("pad_normal"))
     for i, name in enumerate(log.drones):
         colour = _colour(DRONE_COLOURS, i)
-        axes[0].plot(t, rel[:, i, 2], color=colour, label=name)
-        axes[1].plot(t, np.hypot(rel[:, i, 0], rel[:, i, 1]), color=colour, label=name)
+        axes[0].plot(t, height[:, i], color=colour, label=name)
+        axes[1].plot(t, offset[:, i], color=colour, label=name)
     for e in log.events:
         if e["kind"] in (
             "armed",
@@ -101,7 +104,7 @@ def plot_timeline(log: FlightLog, axes: Any = None) -> Any:
                 ax.axvline(e["t"], color="0.6", lw=0.8, ls=":")
             axes[0].annotate(e["kind"], (e["t"], axes[0].get_ylim()[1]), rotation=90, fontsize=7, va="top", ha="right")
     axes[0].set_ylabel("height above goal (m)")
-    axes[1].set_ylabel("horizontal error (m)")
+    axes[1].set_ylabel("distance from pad centre (m)")
     axes[1].set_xlabel("time (s)")
     axes[0].legend(fontsize=8)
     return axes
