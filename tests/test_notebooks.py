@@ -674,6 +674,7 @@ def check_09(shown: Shown) -> None:
         ("shared-quick-cone2", "crazyflie_firmware_cone2_n8_300"),
         ("shared-quick-cone2-seed1", "crazyflie_firmware_cone2_seed1_n8_300"),
         ("shared-quick-cone2-seed2", "crazyflie_firmware_cone2_seed2_n8_300"),
+        ("shared-quick-slow-trackers", "crazyflie_firmware_slow_trackers_n8_300"),
     ):
         [row] = markdown_rows(shown_tables.split(f"**{stem}**", 1)[1].split("**", 1)[0])
         assert row["N"] == "8" and row["trials"] == "300", (stem, row)
@@ -684,6 +685,17 @@ def check_09(shown: Shown) -> None:
         n8[name] = (success, low, high)
     paired, cone = n8["shared-quick-paired"], n8["shared-quick-cone2"]
     assert paired[1] <= cone[0] <= paired[2] and cone[1] <= paired[0] <= cone[2], n8
+    # Smooth commands for slower trackers: more 8-drone swarms land through the firmware tracker than with
+    # shared-quick-cone2, the two intervals apart, and alone the policy collides in no trial at any N on the point mass.
+    assert "**shared-quick-slow-trackers, pads 0.25 m apart**" in shown_tables  # the live cell, on this budget
+    assert n8["shared-quick-slow-trackers"][1] > cone[2] and n8["shared-quick-slow-trackers"][0] >= 95.0, n8
+    alone = [
+        row
+        for row in markdown_rows(shown_tables.split("**scaling_slow_trackers**", 1)[1].split("**", 1)[0])
+        if row["controller"] == "shared"
+    ]
+    assert [row["N"] for row in alone] == ["2", "4", "8", "16"]
+    assert all(first_number(row["collisions % [95 % CI]"]) == 0.0 for row in alone), alone
     # A UR10 swing at 1.0 m/s: the shipped point-mass table meets the 80 % aim through the filter only.
     fast = {
         row["controller"]: first_number(row["success % [95 % CI]"])

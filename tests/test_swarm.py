@@ -419,6 +419,33 @@ def test_bad_shared_training_configs_are_refused():
     assert preset.swarms_per_size == (160, 80, 53, 40)
 
 
+def test_the_slow_tracker_family_holds_pyflyts_identified_tracker_and_refuses_an_empty_range():
+    """PyFlyt's tracker as ``benchmarks/identify_simulators.py`` fitted it lies outside the default family (its loop is
+    too slow, its tilt limit too low) and inside the family of the shared slow-tracker stages; nothing else changes."""
+    from marlander_lite.pointmass.family import DynamicsFamily
+    from marlander_lite.swarm.train import slow_tracker_family
+
+    table = (ROOT / "benchmarks/results/identify_simulators_2026-11-27-pyflyt-0.22.txt").read_text()
+    fitted = next(line for line in table.splitlines() if line.startswith("| pyflyt |")).split("|")[2:8]
+    tau, _, _, tilt, _, sink = (float(value) for value in fitted)
+    default = DynamicsFamily().to_dict()
+    assert not default["velocity_time_constant"][0] <= tau <= default["velocity_time_constant"][1]
+    assert not default["max_tilt_deg"][0] <= tilt <= default["max_tilt_deg"][1]
+    family = slow_tracker_family(1.0)["family"]
+    assert family["velocity_time_constant"][0] <= tau <= family["velocity_time_constant"][1]
+    assert family["max_tilt_deg"][0] <= tilt <= family["max_tilt_deg"][1]
+    assert family["max_sink_acceleration"][1] == pytest.approx(sink, abs=0.05)  # at the family's edge
+    changed = {name for name in family if family[name] != default[name]}
+    assert changed == {"velocity_time_constant", "max_tilt_deg", "max_sink_acceleration"}
+    assert SHARED_PRESETS["shared-quick-slow-trackers-settle"].dynamics == {"family": family}
+    with pytest.raises(ValueError, match="velocity_time_constant is an empty range"):
+        slow_tracker_family(0.05)
+
+
+INTERMEDIATE_STAGES = {"shared-quick-paired-stage4", "shared-quick-smooth", "shared-quick-slow-trackers-stage8"}
+"""Runs of a chain that are not shipped as policies of their own (their run directories hold their policies)."""
+
+
 @pytest.mark.parametrize(
     ("run", "preset", "continues"),
     [
@@ -427,6 +454,9 @@ def test_bad_shared_training_configs_are_refused():
         ("shared-quick-cone2", "shared-quick-cone2", "shared-quick-paired"),
         ("shared-quick-cone2-seed1", "shared-quick-cone2", "shared-quick-paired"),
         ("shared-quick-cone2-seed2", "shared-quick-cone2", "shared-quick-paired"),
+        ("shared-quick-smooth", "shared-quick-smooth", "shared-quick-cone2"),
+        ("shared-quick-slow-trackers-stage8", "shared-quick-slow-trackers", "shared-quick-smooth"),
+        ("shared-quick-slow-trackers", "shared-quick-slow-trackers-settle", "shared-quick-slow-trackers-stage8"),
     ],
 )
 def test_shipped_paired_runs_are_their_presets(run, preset, continues):
@@ -442,7 +472,7 @@ def test_shipped_paired_runs_are_their_presets(run, preset, continues):
     assert record["task"]["pad_assignment"] == "shortest"
     assert (ROOT / "data/runs" / continues / "model.zip").is_file()
     assert (ROOT / "data/runs" / run / "model.zip").is_file()
-    if run != "shared-quick-paired-stage4":  # an intermediate stage, not shipped as a policy
+    if run not in INTERMEDIATE_STAGES:
         shipped = (ROOT / "data/policies" / f"{run}.safetensors").read_bytes()
         assert shipped == (ROOT / "data/runs" / run / "policy.safetensors").read_bytes()
 
