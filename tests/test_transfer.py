@@ -451,3 +451,20 @@ def test_a_centralised_policy_flies_only_its_own_swarm_size(tmp_path, capsys) ->
     with pytest.raises(ValueError, match=r"--num-drones must be an integer from 1 to 64, got 0"):
         transfer.TransferConfig(policy=SHARED, num_drones=0)
     assert transfer.TransferConfig(policy=POLICY, num_drones=2).swarm_size() is None  # its own N, said again
+
+
+@pytest.mark.slow
+def test_the_smooth_shared_policy_lands_alone_in_rotorpy() -> None:
+    """``shared-quick-slow-trackers`` (trained with the smoothness aid) lands 2-drone swarms alone in RotorPy, a
+    simulator this project did not write, where ``shared-quick-cone2`` touched down too fast (57.5 % on the floor)."""
+    pytest.importorskip("rotorpy")
+    config = transfer.TransferConfig(
+        policy="data/policies/shared-quick-slow-trackers.safetensors",
+        episodes=10,
+        columns=("RotorPy Crazyflie",),
+        rows=("floor",),
+        workers=1,
+    )
+    (cell,) = transfer.transfer_matrix(config)
+    assert cell.successes >= 9 and cell.crashes_too_fast == 0, cell
+    assert cell.touchdown_speed < 0.5 and cell.landing_error_cm < 3.0, cell
