@@ -457,6 +457,11 @@ INTERMEDIATE_STAGES = {"shared-quick-paired-stage4", "shared-quick-smooth", "sha
         ("shared-quick-smooth", "shared-quick-smooth", "shared-quick-cone2"),
         ("shared-quick-slow-trackers-stage8", "shared-quick-slow-trackers", "shared-quick-smooth"),
         ("shared-quick-slow-trackers", "shared-quick-slow-trackers-settle", "shared-quick-slow-trackers-stage8"),
+        (
+            "shared-quick-slow-trackers-default-family",
+            "shared-quick-slow-trackers-default-family",
+            "shared-quick-slow-trackers",
+        ),
     ],
 )
 def test_shipped_paired_runs_are_their_presets(run, preset, continues):
