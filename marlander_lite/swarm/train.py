@@ -211,7 +211,8 @@ steeper approach cone (the shipped ``shared-quick-cone2`` policy); ``shared-quic
 its previous command in each drone's input (:mod:`~marlander_lite.swarm.memory`; tried, not shipped).
 ``shared-quick-smooth``, ``shared-quick-slow-trackers`` and ``shared-quick-slow-trackers-settle`` (below) continue
 ``shared-quick-cone2`` with the smoothness aid and a family of slower trackers (the shipped
-``shared-quick-slow-trackers`` policy). N = 16 is never seen in training."""
+``shared-quick-slow-trackers`` policy); ``shared-quick-slow-trackers-default-family`` continues that one on the default
+family (the shipped policy of that name). N = 16 is never seen in training."""
 
 
 def slow_tracker_family(tau_max: float) -> dict[str, Any]:
