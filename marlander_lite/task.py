@@ -517,7 +517,7 @@ def pad_frame_errors(rel_pos: np.ndarray, normal: np.ndarray) -> tuple[np.ndarra
     with the pad radius as its ``horizontal_error``.
     """
     n = np.asarray(normal, dtype=float)
-    height = rel_pos @ n if n.ndim == 1 else np.einsum("...k,...k->...", rel_pos, n)
+    height = np.einsum("...k,...k->...", rel_pos, n)  # one normal broadcasts over the rows
     offset_sq = np.einsum("...k,...k->...", rel_pos, rel_pos) - height * height
     return height, np.sqrt(np.maximum(offset_sq, 0.0))
 

@@ -179,9 +179,7 @@ class LandingControl:
         floor = self.lab.geofence.z[0]
         c = contacts(est, fresh, land.pad_radius, self.lab.limits, self.task.landed_height, floor)
         for i in np.flatnonzero(c.any):
-            self.link.stop_motors(i)
-            self._set_phase(i, DronePhase.DOWN)
-            self.book.commands[i] = {"kind": "stop"}
+            self._motors_off(i)
             if c.landed[i]:
                 self._landed(i, c.offset[i], "touched its pad")
             elif c.hard[i]:
@@ -200,6 +198,12 @@ class LandingControl:
             land.handover[i] = True
             message = f"{self.names[i]} hovers {c.height[i] * 100:.1f} cm above its pad: high-level landing on it"
             self.event("handover", message, i)
+
+    def _motors_off(self, i: int) -> None:
+        """Stop drone ``i``'s motors: it is down, and its command is ``stop`` from now on."""
+        self.link.stop_motors(i)
+        self._set_phase(i, DronePhase.DOWN)
+        self.book.commands[i] = {"kind": "stop"}
 
     def _landed(self, i: int, error: float, how: str) -> None:
         land = self.landings
@@ -226,9 +230,7 @@ class LandingControl:
             if handed[i] and touched.landed[i]:
                 # Its planner would press it on down into the pad: on a tilted one, uphill rim first, until it
                 # tips and slides off. Motors off within touchdown_height of the goal, as a policy touchdown.
-                self.link.stop_motors(i)
-                self._set_phase(i, DronePhase.DOWN)
-                self.book.commands[i] = {"kind": "stop"}
+                self._motors_off(i)
                 del land.planned[i]
                 self._landed(i, touched.offset[i], "touched its pad")
                 continue
@@ -244,9 +246,7 @@ class LandingControl:
             resting = rests(est, i, surface, surface_vel, self.task.landed_height, stale)
             elapsed = self.t - t_land
             if (elapsed >= duration and resting) or elapsed > duration + margin:
-                self.link.stop_motors(i)
-                self._set_phase(i, DronePhase.DOWN)
-                self.book.commands[i] = {"kind": "stop"}
+                self._motors_off(i)
                 del land.planned[i]
                 error = float(pad_frame_errors(est.pos[i] - est.goal[i], est.pad_normal[i])[1])
                 if land.handover[i] and resting and error <= land.pad_radius[i]:

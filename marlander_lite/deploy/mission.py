@@ -452,9 +452,7 @@ class Mission(LandingControl):
         for i in self.safety.tumbled(self.t, est, flying):
             tilt = float(tilt_deg(est.quat[i]))
             self.event("tumbled", f"{self.names[i]} tilted {tilt:.0f} degrees: it cannot be flown, motors off", i)
-            self.link.stop_motors(i)
-            self._set_phase(i, DronePhase.DOWN)
-            self.book.commands[i] = {"kind": "stop"}
+            self._motors_off(i)
             if self.mode in (MissionMode.TAKEOFF, MissionMode.POLICY):
                 self._land_all(est, "a drone tumbled: landing every other drone")
 
@@ -464,9 +462,7 @@ class Mission(LandingControl):
             self.event("emergency", f"{requests.kill}: every motor off")
             for i in range(self.n):
                 if self.phase[i] != DronePhase.LOST:
-                    self.link.stop_motors(i)
-                    self._set_phase(i, DronePhase.DOWN)
-                    self.book.commands[i] = {"kind": "stop"}
+                    self._motors_off(i)
             requests.kill = None
             self._enter(MissionMode.DONE)
         elif requests.land:
