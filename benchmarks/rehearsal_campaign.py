@@ -14,6 +14,9 @@ Run::
     python benchmarks/rehearsal_campaign.py --config marlander_lite/deploy/example_lab_8.yaml \\
         --policy data/policies/shared-quick-local.safetensors --seeds 0-19 [--simulator rotorpy] [--controller pid]
 
+``--drones 16`` flies 16 drones on a 4 x 4 grid of pads 0.25 m apart instead of the config's
+(:meth:`~marlander_lite.deploy.config.LabConfig.with_drones`; the rest of the config as it is).
+
 ``--pad-assignment shortest`` hands the pads out at take-off by the shortest pairing (the config's
 ``pad_assignment``), as a policy trained so (``shared-quick-paired``) expects.
 
@@ -64,6 +67,12 @@ def main(argv: list[str] | None = None) -> None:
         "--mocap-latency", type=float, default=None, help="simulation.latency_s: how late poses arrive (s)"
     )
     parser.add_argument("--takeoff-height", type=float, default=None, help="limits.takeoff_height (m)")
+    parser.add_argument(
+        "--drones",
+        type=int,
+        default=None,
+        help="fly this many drones instead of the config's, on the simulators' 0.25 m grid (LabConfig.with_drones)",
+    )
     parser.add_argument("--no-filter", action="store_true", help="fly without the safety filter (the policy alone)")
     parser.add_argument(
         "--pad-assignment", default=None, choices=PAD_ASSIGNMENTS, help="pad_assignment instead of the config's"
@@ -75,6 +84,11 @@ def main(argv: list[str] | None = None) -> None:
     if args.mocap_latency is not None and not 0.0 <= args.mocap_latency <= 1.0:
         parser.error(f"--mocap-latency must be from 0 to 1 s, got {args.mocap_latency}")
     lab = load_lab_config(args.config)
+    if args.drones is not None:
+        try:
+            lab = lab.with_drones(args.drones)
+        except ValueError as error:
+            parser.error(f"--drones: {error}")
     simulation = {
         "platform": args.platform,
         "platform_speed": args.platform_speed,

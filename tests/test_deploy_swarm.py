@@ -17,6 +17,7 @@ import pytest
 from marlander_lite.deploy.config import (
     EXAMPLE_CONFIG,
     EXAMPLE_CONFIG_8,
+    EXAMPLE_CONFIG_16,
     ConfigError,
     LabConfig,
     load_lab_config,
@@ -83,13 +84,17 @@ def crowded_state(lab: LabConfig, seed: int = 0) -> tuple[np.ndarray, np.ndarray
 
 
 # ------------------------------------------------------------------ the lab config for N drones
-def test_the_8_drone_example_has_the_simulated_plate_s_pads(lab8):
-    offsets = np.array([p.offset for p in lab8.drone_pads()])
-    np.testing.assert_allclose(offsets, PlateGeometry().pad_offsets(8), atol=1e-9)  # the plate it was trained on
-    assert world_platform(lab8).geometry == PlateGeometry()  # and the one the rehearsal simulates
-    gaps = np.linalg.norm(offsets[:, None] - offsets[None], axis=-1) + np.eye(8)
+@pytest.mark.parametrize(("path", "n"), [(EXAMPLE_CONFIG_8, 8), (EXAMPLE_CONFIG_16, 16)])
+def test_the_n_drone_examples_have_the_simulated_plate_s_pads(path, n):
+    lab = load_lab_config(path)
+    offsets = np.array([p.offset for p in lab.drone_pads()])
+    np.testing.assert_allclose(offsets, PlateGeometry().pad_offsets(n), atol=1e-9)  # the plate it was trained on
+    assert world_platform(lab).geometry == PlateGeometry()  # and the one the rehearsal simulates
+    gaps = np.linalg.norm(offsets[:, None] - offsets[None], axis=-1) + np.eye(n)
     assert gaps.min() >= 0.25 - 1e-9  # no two pads (radius 0.1) overlap
-    assert len({d.uri for d in lab8.drones}) == 8 and lab8.num_drones == 8
+    assert len({d.uri for d in lab.drones}) == n and lab.num_drones == n
+    radios = [d.uri.split("/")[2] for d in lab.drones]
+    assert max(radios.count(r) for r in set(radios)) == 4  # a radio shared by more than 4 drops packets at 48 Hz
 
 
 @pytest.mark.parametrize(("layout", "n"), [("grid", 16), ("ring", 6), ("line", 3)])

@@ -21,7 +21,14 @@ The pieces, each in its own module:
 See ``docs/lab_guide.md`` for the lab procedure.
 """
 
-from marlander_lite.deploy.config import EXAMPLE_CONFIG, EXAMPLE_CONFIG_8, ConfigError, LabConfig, load_lab_config
+from marlander_lite.deploy.config import (
+    EXAMPLE_CONFIG,
+    EXAMPLE_CONFIG_8,
+    EXAMPLE_CONFIG_16,
+    ConfigError,
+    LabConfig,
+    load_lab_config,
+)
 from marlander_lite.deploy.flight_log import FlightLog, read_flight_log
 from marlander_lite.deploy.mission import Mission
 from marlander_lite.deploy.rehearsal import FAULT_KINDS, FaultSpec, RehearsalResult, rehearse
@@ -30,6 +37,7 @@ from marlander_lite.deploy.results import MissionResult
 __all__ = [
     "EXAMPLE_CONFIG",
     "EXAMPLE_CONFIG_8",
+    "EXAMPLE_CONFIG_16",
     "FAULT_KINDS",
     "ConfigError",
     "FaultSpec",

@@ -62,6 +62,7 @@ from marlander_lite.task import TaskConfig
 __all__ = [
     "EXAMPLE_CONFIG",
     "EXAMPLE_CONFIG_8",
+    "EXAMPLE_CONFIG_16",
     "MOCAP_KINDS",
     "RENAMED_SIMULATORS",
     "SIMULATOR_KINDS",
@@ -88,6 +89,8 @@ EXAMPLE_CONFIG = Path(__file__).with_name("example_lab.yaml")
 """The example lab config shipped with the package (2 drones, the paper's lab)."""
 EXAMPLE_CONFIG_8 = Path(__file__).with_name("example_lab_8.yaml")
 """The example lab config for 8 drones on a plate with a 3 x 3 grid of pads (fly it with a shared policy)."""
+EXAMPLE_CONFIG_16 = Path(__file__).with_name("example_lab_16.yaml")
+"""The example lab config for 16 drones on a plate with a 4 x 4 grid of pads, four Crazyradios, a wider fence."""
 
 
 @with_config(SCHEMA_CONFIG)
