@@ -453,19 +453,21 @@ def test_a_centralised_policy_flies_only_its_own_swarm_size(tmp_path, capsys) ->
     assert transfer.TransferConfig(policy=POLICY, num_drones=2).swarm_size() is None  # its own N, said again
 
 
+def shipped_floor_cell(name: str, column: str, episodes: int) -> transfer.CellResult:
+    """The floor cell of column ``column`` of the transfer matrix of the shipped policy ``name``, flown alone."""
+    config = transfer.TransferConfig(
+        policy=f"data/policies/{name}.safetensors", episodes=episodes, columns=(column,), rows=("floor",), workers=1
+    )
+    (cell,) = transfer.transfer_matrix(config)
+    return cell
+
+
 @pytest.mark.slow
 def test_the_smooth_shared_policy_lands_alone_in_rotorpy() -> None:
     """``shared-quick-slow-trackers`` (trained with the smoothness aid) lands 2-drone swarms alone in RotorPy, a
     simulator this project did not write, where ``shared-quick-cone2`` touched down too fast (57.5 % on the floor)."""
     pytest.importorskip("rotorpy")
-    config = transfer.TransferConfig(
-        policy="data/policies/shared-quick-slow-trackers.safetensors",
-        episodes=10,
-        columns=("RotorPy Crazyflie",),
-        rows=("floor",),
-        workers=1,
-    )
-    (cell,) = transfer.transfer_matrix(config)
+    cell = shipped_floor_cell("shared-quick-slow-trackers", "RotorPy Crazyflie", episodes=10)
     assert cell.successes >= 9 and cell.crashes_too_fast == 0, cell
     assert cell.touchdown_speed < 0.5 and cell.landing_error_cm < 3.0, cell
 
@@ -477,13 +479,6 @@ def test_the_thin_cushion_shared_policy_lands_alone_in_pyflyt() -> None:
     these 20 floor episodes: 19 landed at 2.28 cm; ``shared-quick-thin-cushion`` 18 at 2.69 cm, ``shared-quick-slow-
     trackers`` 17 at 3.69 cm (200 episodes: 94.0 / 90.0 / 84.5 %)."""
     pytest.importorskip("PyFlyt")
-    config = transfer.TransferConfig(
-        policy="data/policies/shared-quick-slow-trackers-thin-cushion.safetensors",
-        episodes=20,
-        columns=("PyFlyt Crazyflie 0.22",),
-        rows=("floor",),
-        workers=1,
-    )
-    (cell,) = transfer.transfer_matrix(config)
+    cell = shipped_floor_cell("shared-quick-slow-trackers-thin-cushion", "PyFlyt Crazyflie 0.22", episodes=20)
     assert cell.successes >= 19 and cell.landing_error_cm < 2.5, cell
     assert cell.touchdown_speed < 0.35, cell

@@ -213,10 +213,10 @@ its previous command in each drone's input (:mod:`~marlander_lite.swarm.memory`;
 ``shared-quick-cone2`` with the smoothness aid and a family of slower trackers (the shipped
 ``shared-quick-slow-trackers`` policy); ``shared-quick-slow-trackers-default-family`` continues that one on the default
 family (the shipped policy of that name). ``shared-quick-slow-trackers-explore`` continues
-``shared-quick-slow-trackers`` with more exploration of the slow trackers, and ``shared-quick-thin-cushion`` settles
-that one on the default family with a thin ground cushion (the shipped ``shared-quick-thin-cushion`` policy), and
+``shared-quick-slow-trackers`` with more exploration of the slow trackers; ``shared-quick-thin-cushion`` settles that
+one on the default family with a thin ground cushion (the shipped policy of that name);
 ``shared-quick-slow-trackers-thin-cushion`` continues that one on the slow-tracker family with the thin cushion (the
-shipped policy of that name). N = 16 is never seen in training."""
+shipped policy of that name, which the example lab configs name). N = 16 is never seen in training."""
 
 
 def slow_tracker_family(tau_max: float) -> dict[str, Any]:
