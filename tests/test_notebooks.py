@@ -678,6 +678,7 @@ def check_09(shown: Shown) -> None:
         ("shared-quick-slow-trackers-default-family", "crazyflie_firmware_slow_trackers_default_family_n8_300"),
         ("shared-quick-thin-cushion", "crazyflie_firmware_thin_cushion_n8_300"),
         ("shared-quick-slow-trackers-thin-cushion", "crazyflie_firmware_slow_trackers_thin_cushion_n8_300"),
+        ("shared-quick-larger-swarms", "crazyflie_firmware_larger_swarms_n8_300"),
     ):
         [row] = markdown_rows(shown_tables.split(f"**{stem}**", 1)[1].split("**", 1)[0])
         assert row["N"] == "8" and row["trials"] == "300", (stem, row)
@@ -710,10 +711,11 @@ def check_09(shown: Shown) -> None:
     assert all(first_number(row["collisions % [95 % CI]"]) == 0.0 for row in home.values()), home
     # Stage 12 on the thin cushion lands the 16-drone swarms (never trained on) alone, >= 95 % on the point mass where
     # stage 10 lands under 90 %, and >= 95 % of 300 firmware swarms of 8; the live cell on this budget is shown.
-    # So does stage 13 on the slow trackers with the thin cushion.
+    # So do stage 13 on the slow trackers with the thin cushion and stage 14 on swarms of 4 and 8.
     for name, stem in (
         ("shared-quick-thin-cushion", "scaling_thin_cushion"),
         ("shared-quick-slow-trackers-thin-cushion", "scaling_slow_trackers_thin_cushion"),
+        ("shared-quick-larger-swarms", "scaling_larger_swarms"),
     ):
         assert f"**{name} alone, pads 0.25 m apart**" in shown_tables
         thin = {
@@ -726,8 +728,8 @@ def check_09(shown: Shown) -> None:
         assert all(first_number(row["collisions % [95 % CI]"]) == 0.0 for row in thin.values()), thin
         assert n8[name][0] >= 95.0, n8
     [(on_pads, safe)] = re.findall(
-        r"16-drone example lab, point mass, shared-quick-slow-trackers-thin-cushion: (\d+) of 16 on their pads, "
-        r"closest two drones \S+ m, safe (\w+)",
+        r"16-drone example lab, point mass, shared-quick-larger-swarms: (\d+) of 16 on their pads, closest two drones "
+        r"\S+ m, safe (\w+)",
         shown.text,
     )
     assert int(on_pads) >= 15 and safe == "True", (on_pads, safe)

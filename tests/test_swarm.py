@@ -462,11 +462,11 @@ def test_the_thin_cushion_family_changes_only_the_cushion_and_holds_the_nominal_
 
 def test_the_thin_cushion_policy_lands_swarms_of_16_alone_where_its_siblings_touch_down_too_fast():
     """16 drones, a size never trained on, alone on the point mass's 0.25 m grid: measured 40 of 40 swarms for
-    ``shared-quick-thin-cushion`` at evaluation seeds 0-2 (and for stage 13 at seed 0), 34-37 for stage 10
+    ``shared-quick-thin-cushion`` at evaluation seeds 0-2 (and for stages 13 and 14 at seed 0), 34-37 for stage 10
     (``-default-family``) and 35-36 for stage 9, whose failures are all touchdowns above 0.5 m/s (crashes), none a
     collision."""
     landed = {}
-    thin = ("shared-quick-thin-cushion", "shared-quick-slow-trackers-thin-cushion")
+    thin = ("shared-quick-thin-cushion", "shared-quick-slow-trackers-thin-cushion", "shared-quick-larger-swarms")
     for name in (*thin, "shared-quick-slow-trackers-default-family"):
         row = evaluate_cell(
             "shared",
@@ -516,6 +516,7 @@ INTERMEDIATE_STAGES = {
             "shared-quick-slow-trackers-thin-cushion",
             "shared-quick-thin-cushion",
         ),
+        ("shared-quick-larger-swarms", "shared-quick-larger-swarms", "shared-quick-slow-trackers-thin-cushion"),
         (
             "shared-quick-slow-trackers-explore-seed1",
             "shared-quick-slow-trackers-explore",
