@@ -7,11 +7,15 @@ Importing the package registers the gymnasium ids of every simulator in
 Importing it also imports gymnasium, pettingzoo and Stable-Baselines3 (torch): about 2 s. The
 ``marlander`` command imports it before :func:`marlander_lite.cli.main` can catch anything, so a
 Ctrl-C in those 2 s is handled here: when the program is the ``marlander`` command
-(:func:`_started_as_command`), it ends with one line ``Interrupted.`` and exit status 130, like a
-Ctrl-C anywhere else in the command; in any other program the ``KeyboardInterrupt`` goes on as usual.
+(:func:`_started_as_command`), a SIGINT handler set before any other import ends it with one line
+``Interrupted.`` and exit status 130, like a Ctrl-C anywhere else in the command, until
+:func:`marlander_lite.cli.main` puts Python's own handler back (:func:`restore_interrupt_handler`). In any
+other program the ``KeyboardInterrupt`` goes on as usual.
 """
 
 import itertools
+import multiprocessing
+import signal
 import sys
 from pathlib import Path
 
@@ -28,18 +32,34 @@ def _started_as_command() -> bool:
     return any(a == "-m" and b == f"{__name__}.cli" for a, b in itertools.pairwise(orig))
 
 
-try:
-    from marlander_lite.envs.options import EnvOptions
-    from marlander_lite.make import ENV_IDS, SIMULATORS, make_parallel_env, make_vec_env
-    from marlander_lite.platforms import PLATFORM_KINDS, PlatformConfig
-    from marlander_lite.sensing import SensingConfig
-    from marlander_lite.simulators import SimulatorEntry, register_simulator, simulator_entry
-    from marlander_lite.task import TaskConfig
-except KeyboardInterrupt:
-    if not _started_as_command():
-        raise
+def _interrupted_during_start_up(signum: int, frame: object) -> None:
+    """SIGINT handler of the ``marlander`` command's start-up: one line and exit status 130, no traceback."""
     print("Interrupted.", file=sys.stderr)
-    raise SystemExit(130) from None
+    raise SystemExit(130)
+
+
+def restore_interrupt_handler() -> None:
+    """Put Python's own SIGINT handler (``KeyboardInterrupt``) back if the start-up handler is still set;
+    :func:`marlander_lite.cli.main` calls it once its own ``except KeyboardInterrupt`` is in place."""
+    if signal.getsignal(signal.SIGINT) is _interrupted_during_start_up:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+# Only in the command's own process (not in the worker processes it spawns, which never run cli.main) and only over
+# Python's default handler: a shell starts background jobs with SIGINT ignored, and that stays.
+if (
+    _started_as_command()
+    and multiprocessing.parent_process() is None
+    and signal.getsignal(signal.SIGINT) is signal.default_int_handler
+):
+    signal.signal(signal.SIGINT, _interrupted_during_start_up)
+
+from marlander_lite.envs.options import EnvOptions  # noqa: E402 (after the start-up handler, on purpose)
+from marlander_lite.make import ENV_IDS, SIMULATORS, make_parallel_env, make_vec_env  # noqa: E402
+from marlander_lite.platforms import PLATFORM_KINDS, PlatformConfig  # noqa: E402
+from marlander_lite.sensing import SensingConfig  # noqa: E402
+from marlander_lite.simulators import SimulatorEntry, register_simulator, simulator_entry  # noqa: E402
+from marlander_lite.task import TaskConfig  # noqa: E402
 
 __version__ = "0.1.0"
 

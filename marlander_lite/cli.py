@@ -19,6 +19,8 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any, NoReturn
 
+from marlander_lite import restore_interrupt_handler
+
 COMMAND_MODULES = (
     "marlander_lite.training.commands",
     "marlander_lite.training.sweep_command",
@@ -174,6 +176,7 @@ def one_line(error: BaseException) -> str:
 def main(argv: Sequence[str] | None = None) -> int:
     command = "marlander"
     try:
+        restore_interrupt_handler()  # from here on a Ctrl-C is a KeyboardInterrupt, caught below
         parser = build_parser()
         args = parser.parse_args(argv)
         command = f"marlander {args.command}"

@@ -71,3 +71,31 @@ def test_importing_the_package_still_registers_the_gym_ids():
         assert obs is not None
     finally:
         env.close()
+
+
+def test_ctrl_c_between_the_package_import_and_cli_main_is_quiet_too():
+    """The start-up also imports ``marlander_lite.cli`` after the package; on a fast host a Ctrl-C 0.3 s in landed
+    there, past the package's imports, and printed a traceback. The command's start-up handler holds until
+    ``cli.main`` runs. The signal is sent at that point on purpose, not by timing."""
+    code = (
+        "import sys; sys.argv[0] = 'marlander'\n"
+        "import os, signal, time, marlander_lite\n"
+        "os.kill(os.getpid(), signal.SIGINT); time.sleep(2); print('not interrupted')\n"
+    )
+    run = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+    assert (run.returncode, run.stderr.strip(), run.stdout) == (130, "Interrupted.", ""), run
+    # Once cli.main runs, Python's own handler is back, and main turns the KeyboardInterrupt into the same line.
+    code = (
+        "import sys; sys.argv[0] = 'marlander'\n"
+        "import os, signal, marlander_lite, marlander_lite.cli as cli\n"
+        "cli.restore_interrupt_handler()\n"
+        "assert signal.getsignal(signal.SIGINT) is signal.default_int_handler\n"
+    )
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0, run.stderr
