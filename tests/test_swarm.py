@@ -528,6 +528,11 @@ INTERMEDIATE_STAGES = {
             "shared-quick-slow-trackers-thin-cushion",
             "shared-quick-thin-cushion-seed1",
         ),
+        (
+            "shared-quick-larger-swarms-seed1",
+            "shared-quick-larger-swarms",
+            "shared-quick-slow-trackers-thin-cushion-seed1",
+        ),
     ],
 )
 def test_shipped_paired_runs_are_their_presets(run, preset, continues):
