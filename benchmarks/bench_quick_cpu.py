@@ -9,7 +9,8 @@ Training is deterministic with a seed, so every run of this script trains the sa
 wall time is what varies with the machine. Evaluation: 1000 episodes per platform on the paper's
 uniform random starts (training aids off), with and without the motion-capture noise model.
 
-    python benchmarks/bench_quick_cpu.py [--preset quick-cpu-smooth] [--seed 0] [--episodes 1000] [--keep DIR]
+    python benchmarks/bench_quick_cpu.py [--preset quick-cpu-smooth|quick-cpu-slow-trackers|quick-cpu] [--seed 0]
+        [--episodes 1000] [--keep DIR]
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from marlander_lite.training.commands import QUICKSTART_PRESETS
 from marlander_lite.training.evaluation import evaluate_policy_file
 from marlander_lite.training.presets import get_preset
 from marlander_lite.training.train import train
@@ -29,7 +31,7 @@ TARGET_SUCCESS, TARGET_ERROR_CM, TARGET_MINUTES = 0.95, 2.26, 10.0
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--preset", choices=("quick-cpu-smooth", "quick-cpu"), default="quick-cpu-smooth")
+    parser.add_argument("--preset", choices=QUICKSTART_PRESETS, default=QUICKSTART_PRESETS[0])
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--episodes", type=int, default=1000)
     parser.add_argument("--keep", type=Path, default=None, help="train into this new run folder and keep it")

@@ -56,6 +56,15 @@ def test_train_into_an_existing_run_is_refused_in_one_line(capsys, run):
     fails(capsys, ["train", "--out", str(run), "--steps", "100"], "--out", "already holds a training run")
 
 
+def test_a_family_opening_without_a_family_or_beyond_its_range_is_refused_with_the_fix(capsys, tmp_path):
+    out = ["--out", str(tmp_path / "run")]
+    opening = ["train", "--preset", "quick-cpu-slow-trackers", *out]
+    fails(capsys, [*opening, "--family-opening", "1.5"], "family_opening must be a fraction of total_steps in [0, 1]")
+    fails(capsys, [*opening, "--family-opening-gate", "-0.1"], "family_opening_gate must be a success rate in [0, 1]")
+    fails(capsys, [*opening, "--dynamics", "{}"], "family_opening needs a dynamics family", "set family_opening to 0")
+    assert not (tmp_path / "run").exists()
+
+
 def test_quickstart_into_an_existing_run_is_refused_before_training(capsys, run):
     fails(capsys, ["quickstart", "--out", str(run)], "--out", "already holds a training run")
 

@@ -70,6 +70,23 @@ def test_quick_cpu_smooth_is_the_recipe_its_shipped_cone2_runs_recorded():
     assert before == preset.replace(task={k: v for k, v in preset.task.items() if k != "approach_cone_slope"})
 
 
+def test_quick_cpu_slow_trackers_is_quick_cpu_smooth_on_an_opening_slow_tracker_family_and_its_run_recorded_it():
+    from pathlib import Path
+
+    preset = get_preset("quick-cpu-slow-trackers")
+    family = preset.dynamics["family"]
+    assert family["velocity_time_constant"] == [0.08, 1.2] and family["ground_cushion"] == [0.0, 0.1]
+    assert family["max_tilt_deg"] == [12.0, 35.0] and family["max_sink_acceleration"] == [3.0, 9.6]
+    assert (preset.family_opening, preset.family_opening_gate) == (0.3, 0.05)
+    same_otherwise = preset.replace(
+        dynamics=get_preset("quick-cpu-smooth").dynamics, family_opening=0.0, family_opening_gate=0.0
+    )
+    assert same_otherwise == get_preset("quick-cpu-smooth")
+    run = Path(__file__).resolve().parents[1] / "data" / "runs" / "quick-cpu-slow-trackers"
+    record = json.loads((run / "config.json").read_text())
+    assert TrainConfig.from_dict(record["train"]) == preset and record["preset"] == "quick-cpu-slow-trackers"
+
+
 @pytest.mark.parametrize(
     ("change", "message"),
     [

@@ -378,6 +378,20 @@ class PointMassSwarm:
         middle = {name: 0.5 * (low + high) for name, (low, high) in self.family.to_dict().items()}
         self._set_family(np.arange(e), {name: np.full((e, n), value) for name, value in middle.items()})
 
+    def set_family(self, family: DynamicsFamily) -> None:
+        """Draw the next resets' dynamics from ``family`` (a curriculum opens it; drones in flight keep theirs).
+
+        Only for a simulator built with a family, and only within the latency its command history holds.
+        """
+        if self.family is None:
+            raise ValueError("set_family needs a simulator built with PointMassParams(family=...); this one has none.")
+        if family.latency_s[1] > self._commands.shape[0] * self._dt:
+            raise ValueError(
+                f"latency_s up to {family.latency_s[1]:.3f} s is more than the {self._commands.shape[0]} policy "
+                "periods this simulator's command history holds."
+            )
+        self.family = family
+
     def _draw_family(self, env_ids: np.ndarray, rng: np.random.Generator) -> None:
         self._set_family(env_ids, self.family.sample(rng, (len(env_ids), self.task.num_drones)))
         self._commands[:, env_ids] = 0.0

@@ -29,13 +29,19 @@ import torch
 from stable_baselines3.common.callbacks import CallbackList
 from stable_baselines3.common.vec_env import VecNormalize
 
-from marlander_lite.pointmass.family import DynamicsFamily
 from marlander_lite.swarm import memory
 from marlander_lite.swarm.policy import export_shared_policy
 from marlander_lite.swarm.safety_filter import SafetyFilterConfig
 from marlander_lite.swarm.vec_env import SharedSwarmVecEnv
 from marlander_lite.task import TaskConfig
-from marlander_lite.training.presets import ROBUST_DYNAMICS, SMOOTH_COMMANDS, TRAINING_AIDS, TrainConfig
+from marlander_lite.training.presets import (
+    ROBUST_DYNAMICS,
+    SMOOTH_COMMANDS,
+    THIN_CUSHION_DYNAMICS,
+    TRAINING_AIDS,
+    TrainConfig,
+    slow_tracker_family,
+)
 from marlander_lite.training.resume import make_logger
 from marlander_lite.training.smoothness import regulariser_for
 from marlander_lite.training.train import CheckpointEvery, LandingStatsCallback, RunFiles, _new_model, check_new_run
@@ -220,20 +226,6 @@ shipped policy of that name); ``shared-quick-larger-swarms`` continues that one 
 policy of that name, which the example lab configs name). N = 16 is never seen in training."""
 
 
-def slow_tracker_family(tau_max: float) -> dict[str, Any]:
-    """The dynamics family widened to trackers as slow as PyFlyt's (identified: horizontal tau 0.76 s, tilt limit
-    12.7 degrees, sink 9.62 m/s^2; docs/transfer.md, "PyFlyt"): horizontal tau 0.08 s to ``tau_max`` (s), tilt limit
-    12-35 degrees, sink up to 9.6 m/s^2; the rest as :class:`DynamicsFamily`'s defaults. The slow-tracker chain of the
-    quick preset's policy used the same ranges."""
-    family = dataclasses.replace(
-        DynamicsFamily(),
-        velocity_time_constant=(0.08, tau_max),
-        max_tilt_deg=(12.0, 35.0),
-        max_sink_acceleration=(3.0, 9.6),
-    )
-    return {"family": family.to_dict()}
-
-
 SHARED_PRESETS["shared-quick-smooth"] = SHARED_PRESETS["shared-quick-cone2"].replace(
     # Stage 7 (``--init-from`` a shared-quick-cone2 run). The shared recipe never trained with the CAPS smoothness
     # aid, and alone it touched down too fast in RotorPy (57.5 % on the floor); every centralised policy that lands
@@ -274,11 +266,6 @@ SHARED_PRESETS["shared-quick-slow-trackers-explore"] = SHARED_PRESETS["shared-qu
     # 88 % on a first look, while point-mass swarms of 16 fell to 67 % (touchdowns too fast), which stage 12 mends.
     total_steps=12_000_000,
 )
-THIN_CUSHION_DYNAMICS: dict[str, Any] = {
-    "family": dataclasses.replace(DynamicsFamily(), ground_cushion=(0.0, 0.1)).to_dict()
-}
-"""The default family with at most 0.1 g of ground cushion (default: up to 0.5 g): a drone can no longer count on the
-ground effect to brake its touchdown, and must slow down itself (stage 12)."""
 SHARED_PRESETS["shared-quick-thin-cushion"] = SHARED_PRESETS["shared-quick-slow-trackers-explore"].replace(
     # Stage 12 (``--init-from`` a shared-quick-slow-trackers-explore run; the shipped ``shared-quick-thin-cushion``
     # policy). Stage 10 settled on the default family, and its lone drones still touched down at up to 0.51 m/s on

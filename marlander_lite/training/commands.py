@@ -33,7 +33,7 @@ from marlander_lite.training.presets import FINETUNE_PRESETS, PRESETS, TrainConf
 IMAGE_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg")
 """File types ``plot --out`` can write (matplotlib would silently append .png to a name without one)."""
 DEFAULT_PRESET = "quick-cpu"
-QUICKSTART_PRESETS = ("quick-cpu-smooth", "quick-cpu")
+QUICKSTART_PRESETS = ("quick-cpu-smooth", "quick-cpu-slow-trackers", "quick-cpu")
 """What ``marlander quickstart`` may train, its default first."""
 TRAIN_SENSING = ("perfect", "vicon", "noisy", "robust")
 """The observation models a training run may use (``TrainConfig.sensing``)."""
@@ -204,8 +204,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--preset",
         choices=QUICKSTART_PRESETS,
         default=QUICKSTART_PRESETS[0],
-        help="quick-cpu-smooth (default: lands in every static column of the transfer matrix, 9 min on 2 cores) "
-        "or quick-cpu (6.5 min, floor pad, 2.7 cm from the pad centre)",
+        help="quick-cpu-smooth (default: lands in every static column of the transfer matrix but PyFlyt's, 9 min on 2 "
+        "cores), quick-cpu-slow-trackers (the same time; also lands alone in PyFlyt, less precisely) or quick-cpu "
+        "(6.5 min, floor pad, 2.7 cm from the pad centre)",
     )
     quick.add_argument("--seed", type=non_negative_int, default=0)
     quick.add_argument("--episodes", type=positive_int, default=500, help="evaluation episodes")

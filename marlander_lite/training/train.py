@@ -45,6 +45,7 @@ from marlander_lite.platforms import PlatformConfig
 from marlander_lite.task import OBSERVATION_OPTIONS, TaskConfig
 from marlander_lite.training import warm_start
 from marlander_lite.training.export import export_policy
+from marlander_lite.training.family_curriculum import opening_for
 from marlander_lite.training.presets import TrainConfig
 from marlander_lite.training.provenance import code_version, policy_digest
 from marlander_lite.training.resume import (
@@ -380,9 +381,11 @@ def _learn(
     on_stop = CheckpointOnStop(stop, files.root / RESUME_DIR, config.simulator)
     checkpoints = CheckpointEvery(files.checkpoints, config.checkpoint_every)
     own: list[BaseCallback] = [LandingStatsCallback(), checkpoints, on_stop, *regulariser_for(config)]
+    run_start = model.num_timesteps if target is None else target - config.total_steps
     if config.critic_warmup_steps:  # counted from the run's first step, also when it is resumed
-        run_start = model.num_timesteps if target is None else target - config.total_steps
         own.append(warm_start.CriticWarmup(config.critic_warmup_steps, run_start))
+    resumed_log = None if target is None else files.progress
+    own += opening_for(config, env, run_start, resumed_log, now=model.num_timesteps)
     everything = CallbackList([*own, *callbacks])
     started = time.perf_counter()
     with stop:
