@@ -84,6 +84,12 @@ def test_bad_family_openings_are_refused_with_what_is_allowed(changes: dict, mes
         TrainConfig(dynamics={"family": SLOW.to_dict()}).replace(**changes)
 
 
+def opening_run(steps: int, **changes) -> TrainConfig:
+    """A run of rollouts of 2048 steps (64 envs x 32) on :data:`SLOW`, a second or two."""
+    small = {"num_envs": 64, "n_steps": 32, "batch_size": 512, "net_arch": (16, 16), "checkpoint_every": 0}
+    return get_preset("quick-cpu").replace(total_steps=steps, dynamics={"family": SLOW.to_dict()}, **small, **changes)
+
+
 class _RecordFamily(BaseCallback):
     """The simulator's family at every rollout, after the run's own callbacks set it."""
 
@@ -102,16 +108,7 @@ class _RecordFamily(BaseCallback):
 def test_a_run_opens_its_family_over_the_asked_fraction_of_its_steps(tmp_path) -> None:
     """8 rollouts of 2048 steps, opening over half of them: tau's upper bound climbs from the default's 0.4 s to 1.2 s
     at the rollout starting at 8192 steps and stays there."""
-    config = get_preset("quick-cpu").replace(
-        total_steps=16_384,
-        num_envs=64,
-        n_steps=32,
-        batch_size=512,
-        net_arch=(16, 16),
-        checkpoint_every=0,
-        dynamics={"family": SLOW.to_dict()},
-        family_opening=0.5,
-    )
+    config = opening_run(16_384, family_opening=0.5)
     recorder = _RecordFamily()
     train(config, tmp_path / "run", callbacks=(recorder,))
     steps = [s for s, _ in recorder.seen]
@@ -180,17 +177,7 @@ def test_an_opening_run_interrupted_and_resumed_ends_as_one_that_never_stopped(t
     from marlander_lite.training.resume import TrainingInterrupted
     from marlander_lite.training.train import resume
 
-    config = get_preset("quick-cpu").replace(
-        total_steps=8192,
-        num_envs=64,
-        n_steps=32,
-        batch_size=512,
-        net_arch=(16, 16),
-        checkpoint_every=0,
-        seed=5,
-        dynamics={"family": SLOW.to_dict()},
-        family_opening=1.0,
-    )
+    config = opening_run(8192, family_opening=1.0, seed=5)
     with pytest.raises(TrainingInterrupted):
         train(config, tmp_path / "run", callbacks=(_InterruptAt(3000),))
     recorder = _RecordFamily()

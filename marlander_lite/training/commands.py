@@ -205,8 +205,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         choices=QUICKSTART_PRESETS,
         default=QUICKSTART_PRESETS[0],
         help="quick-cpu-smooth (default: lands in every static column of the transfer matrix but PyFlyt's, 9 min on 2 "
-        "cores), quick-cpu-slow-trackers (the same time; also lands alone in PyFlyt, less precisely) or quick-cpu "
-        "(6.5 min, floor pad, 2.7 cm from the pad centre)",
+        "cores), quick-cpu-slow-trackers (the same 12 M steps; also lands alone in PyFlyt, less precisely) or "
+        "quick-cpu (6.5 min, floor pad, 2.7 cm from the pad centre)",
     )
     quick.add_argument("--seed", type=non_negative_int, default=0)
     quick.add_argument("--episodes", type=positive_int, default=500, help="evaluation episodes")

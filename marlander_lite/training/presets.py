@@ -327,7 +327,8 @@ _QUICK_SLOW_TRACKERS = _QUICK_SMOOTH.replace(
   over 30 % of it, neither seed 1 nor 2. Gated, seed 0 opened at 6.2 M steps: over half the run it was 97 % open at
   the end and landed 82-83 % in PyFlyt 0.22 (200 episodes a row), over 30 % 88.5-90.5 %.
 
-Everything else is ``quick-cpu-smooth``'s: 12 M steps, two threads, the same time on 2 cores."""
+Everything else is ``quick-cpu-smooth``'s: 12 M steps, two threads. Alone on the 2-core VM (2026-11-29, night) it
+trained in 4.24 min and ``quick-cpu-smooth`` in 3.79 min, one run each (``benchmarks/results/bench_quick_cpu_*``)."""
 
 PRESETS: dict[str, TrainConfig] = {
     "quick-cpu": _QUICK,
