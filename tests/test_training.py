@@ -82,9 +82,13 @@ def test_quick_cpu_slow_trackers_is_quick_cpu_smooth_on_an_opening_slow_tracker_
         dynamics=get_preset("quick-cpu-smooth").dynamics, family_opening=0.0, family_opening_gate=0.0
     )
     assert same_otherwise == get_preset("quick-cpu-smooth")
-    run = Path(__file__).resolve().parents[1] / "data" / "runs" / "quick-cpu-slow-trackers"
-    record = json.loads((run / "config.json").read_text())
-    assert TrainConfig.from_dict(record["train"]) == preset and record["preset"] == "quick-cpu-slow-trackers"
+    runs = Path(__file__).resolve().parents[1] / "data" / "runs"
+    for name, expected in (
+        ("quick-cpu-slow-trackers", preset),
+        ("quick-cpu-slow-trackers-seed1", preset.replace(seed=1)),
+    ):
+        record = json.loads((runs / name / "config.json").read_text())
+        assert TrainConfig.from_dict(record["train"]) == expected and record["preset"] == "quick-cpu-slow-trackers"
 
 
 @pytest.mark.parametrize(
