@@ -631,9 +631,30 @@ def check_08(shown: Shown) -> None:
         r"^flown here: quick-cpu-slow-trackers alone in PyFlyt 0.22, floor: (\d+) of (\d+)"
     )
     assert flown >= 2 and landed >= 0.5 * flown  # 18 of the first 20 (tests/test_transfer.py), 1 of the first 2
+    # Section 4n: the integrator. Against drag a proportional loop settles where the hand's force balance says and an
+    # integrating one at the command; after a brake the integrator carries the drone past where its commands lead, the
+    # further the larger k_i.
+    [(hand,)] = shown.numbers(r"^worked by hand, a proportional loop against drag: u / \(1 \+ drag tau\) = (\S+) m/s$")
+    pattern = r"^k_i (\S+): settles at (\S+) m/s against drag; overshoots the 1.5 m its commands add up to by (\S+) cm$"
+    loops = shown.numbers(pattern)
+    assert [gain for gain, _, _ in loops] == [0.0, 0.375, 0.8]
+    assert close(loops[0][1], hand, 0.0011) and all(close(speed, 0.3, 0.0011) for _, speed, _ in loops[1:])
+    assert loops[0][2] < loops[1][2] < loops[2][2], loops
+    integral = read_csv(RESULTS / "transfer" / "quick-cpu-slow-trackers-integral" / "transfer.csv")
+    assert len(integral) == 24 and len({c["column"] for c in integral}) == 12
+    [(worst,)] = shown.numbers(r"^quick-cpu-slow-trackers-integral worst cell: (\S+) % \(.+\)$")
+    assert close(worst, 100 * min(float(c["success_rate"]) for c in integral), 0.051)
+    [(widest,)] = shown.numbers(r"^quick-cpu-slow-trackers-integral largest landing error: (\S+) cm$")
+    assert close(widest, max(float(c["landing_error_cm"]) for c in integral), 0.0051)
+    on_022 = [float(c["success_rate"]) for c in integral if c["column"] == "PyFlyt Crazyflie 0.22"]
+    assert min(on_022) > max(pyflyt)  # the integrator's preset lands more of PyFlyt 0.22 than the first version
+    [(landed, flown)] = shown.numbers(
+        r"^flown here: quick-cpu-slow-trackers-integral alone in PyFlyt 0.22, floor: (\d+) of (\d+)"
+    )
+    assert flown >= 2 and landed >= 0.5 * flown
     # step responses (with and without RotorPy, and with PyFlyt), transfer bars, the pad's acceleration, the late
-    # descent, the swing, the steeper cone's landing errors, PyFlyt held still, the opening family
-    assert shown.figures == 10
+    # descent, the swing, the steeper cone's landing errors, PyFlyt held still, the opening family, the integrator
+    assert shown.figures == 11
 
 
 def check_09(shown: Shown) -> None:

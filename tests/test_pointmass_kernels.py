@@ -226,12 +226,14 @@ AIDS = {"landing_precision_bonus": 50.0, "approach_cone_penalty": 0.5, "action_c
         ("static-floor", 2, False, None, {}),
         ("static-floor", 3, True, SensingConfig.vicon(), AIDS),
         ("static-elevated", 1, True, SensingConfig.vicon(), {}),
+        ("static-floor", 2, "integral", None, {}),
         ("moving-linear", 2, False, None, EXTRAS),
         ("moving-arc", 4, False, SensingConfig.robust(), {}),
     ],
 )
 def test_compiled_engine_flies_the_reference_bit_for_bit(platform, num_drones, family, sensing, task_options):
-    params = PointMassParams(family=DynamicsFamily()) if family else None
+    integral = DynamicsFamily(velocity_integral_gain=(0.0, 0.5))  # a PI velocity loop
+    params = PointMassParams(family=integral if family == "integral" else DynamicsFamily()) if family else None
     sim, reference, events = rollout("numpy", platform, num_drones, params, sensing, **task_options)
     compiled_sim, compiled, compiled_events = rollout("numba", platform, num_drones, params, sensing, **task_options)
     assert (sim.engine, compiled_sim.engine) == ("numpy", "numba")

@@ -15,7 +15,7 @@ from marlander_lite.cli import main
 from marlander_lite.plotting import plot_training_curves, read_progress
 from marlander_lite.policy_file import load_policy
 from marlander_lite.training.evaluation import run_episodes, summarise
-from marlander_lite.training.presets import PRESETS, TrainConfig, get_preset
+from marlander_lite.training.presets import PRESETS, SLOW_TRACKERS_FIRST_VERSION, TrainConfig, get_preset
 from marlander_lite.training.resume import TrainingInterrupted
 from marlander_lite.training.train import resume, train
 
@@ -77,15 +77,20 @@ def test_quick_cpu_slow_trackers_is_quick_cpu_smooth_on_an_opening_slow_tracker_
     family = preset.dynamics["family"]
     assert family["velocity_time_constant"] == [0.08, 1.2] and family["ground_cushion"] == [0.0, 0.1]
     assert family["max_tilt_deg"] == [12.0, 35.0] and family["max_sink_acceleration"] == [3.0, 9.6]
-    assert (preset.family_opening, preset.family_opening_gate) == (0.3, 0.05)
+    assert family["velocity_integral_gain"] == [0.0, 0.8]
+    assert (preset.family_opening, preset.family_opening_gate) == (0.15, 0.05)
     same_otherwise = preset.replace(
         dynamics=get_preset("quick-cpu-smooth").dynamics, family_opening=0.0, family_opening_gate=0.0
     )
     assert same_otherwise == get_preset("quick-cpu-smooth")
+    first_version = preset.replace(dynamics=SLOW_TRACKERS_FIRST_VERSION, family_opening=0.3)
+    assert "velocity_integral_gain" not in first_version.dynamics["family"]
     runs = Path(__file__).resolve().parents[1] / "data" / "runs"
     for name, expected in (
-        ("quick-cpu-slow-trackers", preset),
-        ("quick-cpu-slow-trackers-seed1", preset.replace(seed=1)),
+        ("quick-cpu-slow-trackers", first_version),
+        ("quick-cpu-slow-trackers-seed1", first_version.replace(seed=1)),
+        ("quick-cpu-slow-trackers-integral", preset),
+        ("quick-cpu-slow-trackers-integral-seed1", preset.replace(seed=1)),
     ):
         record = json.loads((runs / name / "config.json").read_text())
         assert TrainConfig.from_dict(record["train"]) == expected and record["preset"] == "quick-cpu-slow-trackers"

@@ -61,6 +61,11 @@ class DynamicsFamily:
     with ``r`` = :data:`CUSHION_LENGTH` and ``h`` the height above the surface below the drone."""
     command_gain: Range = (0.9, 1.1)
     """Steady-state speed over commanded speed: our PID settles 6-8 % above the command."""
+    velocity_integral_gain: Range = (0.0, 0.0)
+    """Integral action of the horizontal velocity loop (1/s): the loop acts on ``u + k_i * integral(u - v) dt``, as a
+    PID tracker does whose integrator carries past errors into the next seconds (PyFlyt's Crazyflie: ``k_i / k_p =
+    0.3 / 0.8`` = 0.375 1/s; docs/transfer.md, "An integrator in the tracker"). 0: none, the paper's point mass. An
+    extension (:data:`EXTENSIONS`): at (0, 0) it is neither drawn nor written, so families without it stay as before."""
 
     def __post_init__(self) -> None:
         bounds = {
@@ -75,6 +80,7 @@ class DynamicsFamily:
             "drag": (0.0, 5.0),
             "ground_cushion": (0.0, 2.0),
             "command_gain": (0.5, 2.0),
+            "velocity_integral_gain": (0.0, 5.0),
         }
         for name, (lowest, highest) in bounds.items():
             value = getattr(self, name)
@@ -116,15 +122,28 @@ class DynamicsFamily:
         return cls.from_mapping({name: (v, v) for name, v in nominal.items()})
 
     def to_dict(self) -> dict[str, list[float]]:
-        return {f.name: list(getattr(self, f.name)) for f in dataclasses.fields(self)}
+        """Field -> ``[low, high]``; an extension left at (0, 0) is left out, as families before it wrote them."""
+        return {f.name: list(getattr(self, f.name)) for f in dataclasses.fields(self) if not self._unused(f.name)}
 
     def sample(self, rng: np.random.Generator, shape: tuple[int, ...]) -> dict[str, np.ndarray]:
         """One draw per entry of ``shape`` (e.g. ``(envs, drones)``) for every property, uniform in its range.
 
         The properties are drawn in field order, one ``rng.uniform`` call each, so a seeded
-        generator gives the same dynamics on every machine.
+        generator gives the same dynamics on every machine. An extension left at (0, 0) is zero without a draw,
+        so a seed gives the same flights as before the extension existed.
         """
-        return {f.name: rng.uniform(*getattr(self, f.name), size=shape) for f in dataclasses.fields(self)}
+        return {
+            f.name: np.zeros(shape) if self._unused(f.name) else rng.uniform(*getattr(self, f.name), size=shape)
+            for f in dataclasses.fields(self)
+        }
+
+    def _unused(self, name: str) -> bool:
+        return name in EXTENSIONS and getattr(self, name) == (0.0, 0.0)
+
+
+EXTENSIONS = ("velocity_integral_gain",)
+"""Fields added after families were first shipped, off at (0, 0): such a field changes neither the draws nor the
+``to_dict`` of a family that does not use it, so runs trained before it reproduce and compare equal."""
 
 
 CUSHION_LENGTH = 0.04
@@ -142,5 +161,6 @@ NOMINAL: dict[str, float] = {
     "drag": 0.0,
     "ground_cushion": 0.0,
     "command_gain": 1.0,
+    "velocity_integral_gain": 0.0,
 }
 """The default point mass (the fit to our PyBullet PID) expressed as a family member."""

@@ -21,6 +21,7 @@ default through ``"auto"``; inclined plates always use the reference).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -35,6 +36,9 @@ from marlander_lite.rotations import IDENTITY_QUAT, turn_angle, vector_norm
 from marlander_lite.task import TaskConfig
 
 GRAVITY = 9.81
+INTEGRAL_ACTION_LIMIT = 0.5
+"""Largest speed (m/s, per horizontal axis) the integral action of ``DynamicsFamily.velocity_integral_gain`` may add
+to a command: a tracker's integrator is bounded (anti-windup), or a drone pinned by a wall would wind it up forever."""
 
 
 @dataclass(frozen=True)
@@ -250,6 +254,8 @@ class PointMassSwarm:
             raise ValueError(f"drone_pos must be a finite ({self.task.num_drones}, 3) array, got shape {pos.shape}.")
         self.pos[env_id] = pos
         self._at_rest(env_id)
+        if self.family is not None:
+            self._error_integral[env_id] = 0.0
 
     def relaunch(self, drones: np.ndarray, rng: np.random.Generator, tries: int = 20) -> None:
         """Put the drones where ``drones`` ``(num_envs, N)`` is True at new random starting positions, at rest and
@@ -279,8 +285,9 @@ class PointMassSwarm:
             pending = pending[~keep]
         self._at_rest(drones)
         self.contact[drones] = task.CONTACT_NONE
-        if self.family is not None:  # commands in flight to the old flight are dropped
+        if self.family is not None:  # commands in flight to the old flight are dropped, and the integrator's memory
             self._commands[:, drones] = 0.0
+            self._error_integral[drones] = 0.0
 
     def stop_motors(self, stopped: np.ndarray) -> None:
         """Cut the motors of drones where ``stopped`` ``(num_envs, N)`` is True: they fall freely until they
@@ -337,7 +344,7 @@ class PointMassSwarm:
         family = self.family is not None
         if family:  # the command each drone acts on, late and scaled
             kernels.delayed_commands(velocity, self._cmd_gain, self._latency, self._commands, self._acting)
-            velocity = self._acting
+            velocity = self._integral_action(self._acting)
         kernels.thrust_and_integrate(
             velocity, self.pos, self.vel, self._thrust_dir, self.motors_stopped, self._gain, self._turn,
             self._tan_tilt, self._thrust_min, self._thrust_max, family, self._inv_mass, self._drag, self._cushion,
@@ -375,7 +382,12 @@ class PointMassSwarm:
         """Latency in policy periods, in [0, 2]: the command history below holds two periods."""
         self._commands = np.zeros((2, e, n, 3))
         """The two previous velocity commands (after the gain error), newest first."""
-        middle = {name: 0.5 * (low + high) for name, (low, high) in self.family.to_dict().items()}
+        self._integral_gain = batch_zeros(e, n, 1)
+        self._error_integral = batch_zeros(e, n, 3)
+        """Integral of each drone's horizontal velocity error ``(u - v)`` since its reset (m; z stays 0)."""
+        self._integral_on = False
+        """Whether any drone has drawn integral action (``velocity_integral_gain``): until then none is computed."""
+        middle = {f.name: 0.5 * sum(getattr(self.family, f.name)) for f in dataclasses.fields(self.family)}
         self._set_family(np.arange(e), {name: np.full((e, n), value) for name, value in middle.items()})
 
     def set_family(self, family: DynamicsFamily) -> None:
@@ -395,6 +407,7 @@ class PointMassSwarm:
     def _draw_family(self, env_ids: np.ndarray, rng: np.random.Generator) -> None:
         self._set_family(env_ids, self.family.sample(rng, (len(env_ids), self.task.num_drones)))
         self._commands[:, env_ids] = 0.0
+        self._error_integral[env_ids] = 0.0
 
     def _set_family(self, env_ids: np.ndarray, draw: dict[str, np.ndarray]) -> None:
         dt = self._dt
@@ -410,6 +423,20 @@ class PointMassSwarm:
         self._cushion[env_ids] = draw["ground_cushion"]
         self._cmd_gain[env_ids, :, 0] = draw["command_gain"]
         self._latency[env_ids, :, 0] = latency
+        self._integral_gain[env_ids, :, 0] = draw["velocity_integral_gain"]
+        self._integral_on = self._integral_on or bool(draw["velocity_integral_gain"].any())
+
+    def _integral_action(self, acting: np.ndarray) -> np.ndarray:
+        """``acting`` ``(num_envs, N, 3)`` m/s with the integral action of a PI velocity loop added, in place:
+        ``u + k_i * integral(u - v) dt`` horizontally, the added speed at most :data:`INTEGRAL_ACTION_LIMIT` per axis
+        (the integrator's anti-windup), then this step's error integrated. Nothing without ``velocity_integral_gain``.
+        """
+        if not self._integral_on:
+            return acting
+        boost = np.clip(self._integral_gain * self._error_integral, -INTEGRAL_ACTION_LIMIT, INTEGRAL_ACTION_LIMIT)
+        self._error_integral[..., :2] += (acting[..., :2] - self.vel[..., :2]) * self._dt
+        acting += boost
+        return acting
 
     def _family_thrust(self, velocity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`_thrust` for a drone drawn from the family: the command arrives late and scaled, the
@@ -423,7 +450,7 @@ class PointMassSwarm:
         acting = (1.0 - late) * command + late * older
         self._commands[1] = self._commands[0]
         self._commands[0] = command
-        accel, axis = self._thrust(acting)
+        accel, axis = self._thrust(self._integral_action(acting))
         # _thrust's acceleration is that of the nominal mass: the same force moves a heavier drone less.
         accel[..., 2] += GRAVITY
         accel *= self._inv_mass

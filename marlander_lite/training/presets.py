@@ -309,9 +309,21 @@ development VM, and its seed 1 land 95.5-100 % in every static column of the tra
 2.62 cm in RotorPy; the 14 M-step version before it (a 128-128 critic, constant 3e-4, ``quick-cpu-smooth-14m``) took
 11.9 min (docs/transfer.md)."""
 
+TRACKER_INTEGRATOR = (0.0, 0.8)
+"""Integral action of the family's horizontal velocity loop (``DynamicsFamily.velocity_integral_gain``, 1/s) in
+``quick-cpu-slow-trackers``: PyFlyt's PID has 0.375, the Crazyflie firmware's 0.04. PyFlyt's integrator cost the
+preset's first version (without it) 1.3 cm of landing error there (``benchmarks/pyflyt_tracker_parts.py``); trained
+with 0-0.5 a one-thread run landed 2.19-2.37 cm from the centre there, with 0-0.8 1.86-2.05 cm (docs/transfer.md)."""
+
+SLOW_TRACKERS_FIRST_VERSION: dict[str, Any] = {
+    "family": {**slow_tracker_family(1.2)["family"], "ground_cushion": list(THIN_CUSHION)}
+}
+"""The dynamics of ``quick-cpu-slow-trackers``' first version (shipped as ``quick-cpu-slow-trackers`` and
+``-seed1``, trained with ``family_opening=0.3``): the slow-tracker family with the thin cushion, no integrator."""
+
 _QUICK_SLOW_TRACKERS = _QUICK_SMOOTH.replace(
-    dynamics={"family": {**slow_tracker_family(1.2)["family"], "ground_cushion": list(THIN_CUSHION)}},
-    family_opening=0.3,
+    dynamics={"family": {**SLOW_TRACKERS_FIRST_VERSION["family"], "velocity_integral_gain": list(TRACKER_INTEGRATOR)}},
+    family_opening=0.15,
     family_opening_gate=0.05,
 )
 """``quick-cpu-slow-trackers``: ``quick-cpu-smooth`` on a family that reaches PyFlyt's slow loop, so that the
@@ -320,15 +332,20 @@ _QUICK_SLOW_TRACKERS = _QUICK_SMOOTH.replace(
 * the family of :func:`slow_tracker_family` with horizontal tau up to 1.2 s (PyFlyt's fit: 0.76 s), and the thin
   ground cushion (:data:`THIN_CUSHION`). With the default family's cushion this family from scratch never learnt to
   land in 12 M steps (touchdowns at 0.8 m/s, or hovering; docs/transfer.md).
-* the family opens over 30 % of the run's steps (``family_opening``,
-  :mod:`~marlander_lite.training.family_curriculum`), once 5 % of the recent training episodes land
-  (``family_opening_gate``). On the whole family from the first step, seed 0 learnt to land after 9 M steps and
-  seeds 1 and 2 never did; opening from the first step over half the run, seeds 1 and 2 learnt and seed 0 did not;
-  over 30 % of it, neither seed 1 nor 2. Gated, seed 0 opened at 6.2 M steps: over half the run it was 97 % open at
-  the end and landed 82-83 % in PyFlyt 0.22 (200 episodes a row), over 30 % 88.5-90.5 %.
+* velocity loops with integral action (:data:`TRACKER_INTEGRATOR`, since 2026-11-29 late): a PID tracker's
+  integrator carries the approach's error on after the drone has braked. Seed 0 of the preset with it lands 99.5 %
+  in PyFlyt 0.22, where the first version (without it, opening over 30 %) landed 88.5-90.5 %.
+* the family opens over 15 % of the run's steps (``family_opening``,
+  :mod:`~marlander_lite.training.family_curriculum`; 30 % in the first version), once 5 % of the recent training
+  episodes land (``family_opening_gate``). On the whole family from the first step, seed 0 learnt to land after 9 M
+  steps and seeds 1 and 2 never did; opening from the first step over half the run, seeds 1 and 2 learnt and seed 0
+  did not; over 30 % of it, neither seed 1 nor 2. Gated, seed 0 opened at 6.2 M steps: over half the run it was 97 %
+  open at the end and landed 82-83 % in PyFlyt 0.22 (200 episodes a row), over 30 % 88.5-90.5 %, over 15 % 88.5-90.0
+  % (without the integrator).
 
-Everything else is ``quick-cpu-smooth``'s: 12 M steps, two threads. Alone on the 2-core VM (2026-11-29, night) it
-trained in 4.24 min and ``quick-cpu-smooth`` in 3.79 min, one run each (``benchmarks/results/bench_quick_cpu_*``)."""
+Everything else is ``quick-cpu-smooth``'s: 12 M steps, two threads. Alone on the 2-core VM (2026-11-29, night) the
+first version trained in 4.24 min and ``quick-cpu-smooth`` in 3.79 min, one run each
+(``benchmarks/results/bench_quick_cpu_*``)."""
 
 PRESETS: dict[str, TrainConfig] = {
     "quick-cpu": _QUICK,
@@ -367,7 +384,8 @@ PRESET_NOTES: dict[str, str] = {
     "quick-cpu-smooth": "quick-cpu on plates of every height with smooth commands and a steeper approach cone, 12 M "
     "steps, 2 threads: lands in every static column of the transfer matrix, RotorPy included; about 9 min on 2 cores.",
     "quick-cpu-slow-trackers": "quick-cpu-smooth on a dynamics family that opens to trackers as slow as PyFlyt's "
-    "(tau up to 1.2 s) with a thin ground cushion: lands alone in PyFlyt 0.22 too (88.5-90.5 %); the same 12 M steps.",
+    "(tau up to 1.2 s, with integral action) with a thin ground cushion: lands alone in PyFlyt 0.22 too; the same 12 M "
+    "steps.",
     "paper": "the paper's 512-512-256-128 ReLU policy, 20 M steps, point mass (about 45 min on 2 cores).",
     "crazyflie-finetune": "continue a quick-cpu/paper run in the PyBullet Crazyflie swarm, 3 M steps (~30 min).",
     "moving": "beyond the paper: observes the platform velocity; UR10 arcs at 0-0.6 m/s, floor to 1 m, smooth "
