@@ -619,18 +619,8 @@ def check_08(shown: Shown) -> None:
     log = read_csv(ROOT / "data" / "runs" / "quick-cpu-slow-trackers" / "logs" / "progress.csv")
     assert opened == next(float(r["train/family_opened_at"]) for r in log if r["train/family_opened_at"])
     assert length == 3_600_000
-    slow = read_csv(RESULTS / "transfer" / "quick-cpu-slow-trackers" / "transfer.csv")
-    assert len(slow) == 24 and len({c["column"] for c in slow}) == 12
-    [(worst,)] = shown.numbers(r"^quick-cpu-slow-trackers worst cell: (\S+) % \(.+\)$")
-    assert close(worst, 100 * min(float(c["success_rate"]) for c in slow), 0.051)
-    [(widest,)] = shown.numbers(r"^quick-cpu-slow-trackers largest landing error: (\S+) cm$")
-    assert close(widest, max(float(c["landing_error_cm"]) for c in slow), 0.0051)
-    pyflyt = [float(c["success_rate"]) for c in slow if c["column"] == "PyFlyt Crazyflie 0.22"]
+    pyflyt = shown_matrix_and_pyflyt_flight(shown, "quick-cpu-slow-trackers")
     assert min(pyflyt) >= 0.8  # quick-cpu-smooth's own run: 31.5 / 28.0 %
-    [(landed, flown)] = shown.numbers(
-        r"^flown here: quick-cpu-slow-trackers alone in PyFlyt 0.22, floor: (\d+) of (\d+)"
-    )
-    assert flown >= 2 and landed >= 0.5 * flown  # 18 of the first 20 (tests/test_transfer.py), 1 of the first 2
     # Section 4n: the integrator. Against drag a proportional loop settles where the hand's force balance says and an
     # integrating one at the command; after a brake the integrator carries the drone past where its commands lead, the
     # further the larger k_i.
@@ -640,21 +630,26 @@ def check_08(shown: Shown) -> None:
     assert [gain for gain, _, _ in loops] == [0.0, 0.375, 0.8]
     assert close(loops[0][1], hand, 0.0011) and all(close(speed, 0.3, 0.0011) for _, speed, _ in loops[1:])
     assert loops[0][2] < loops[1][2] < loops[2][2], loops
-    integral = read_csv(RESULTS / "transfer" / "quick-cpu-slow-trackers-integral" / "transfer.csv")
-    assert len(integral) == 24 and len({c["column"] for c in integral}) == 12
-    [(worst,)] = shown.numbers(r"^quick-cpu-slow-trackers-integral worst cell: (\S+) % \(.+\)$")
-    assert close(worst, 100 * min(float(c["success_rate"]) for c in integral), 0.051)
-    [(widest,)] = shown.numbers(r"^quick-cpu-slow-trackers-integral largest landing error: (\S+) cm$")
-    assert close(widest, max(float(c["landing_error_cm"]) for c in integral), 0.0051)
-    on_022 = [float(c["success_rate"]) for c in integral if c["column"] == "PyFlyt Crazyflie 0.22"]
+    on_022 = shown_matrix_and_pyflyt_flight(shown, "quick-cpu-slow-trackers-integral")
     assert min(on_022) > max(pyflyt)  # the integrator's preset lands more of PyFlyt 0.22 than the first version
-    [(landed, flown)] = shown.numbers(
-        r"^flown here: quick-cpu-slow-trackers-integral alone in PyFlyt 0.22, floor: (\d+) of (\d+)"
-    )
-    assert flown >= 2 and landed >= 0.5 * flown
     # step responses (with and without RotorPy, and with PyFlyt), transfer bars, the pad's acceleration, the late
     # descent, the swing, the steeper cone's landing errors, PyFlyt held still, the opening family, the integrator
     assert shown.figures == 11
+
+
+def shown_matrix_and_pyflyt_flight(shown: Shown, policy: str) -> list[float]:
+    """Checks the lines a notebook prints for ``policy``'s shipped twelve-column matrix (its worst cell and largest
+    landing error are the csv's) and for its live floor flight in PyFlyt 0.22 (at least half of the episodes land: 18
+    and 20 of the first 20 in tests/test_transfer.py); returns the matrix's PyFlyt 0.22 success rates."""
+    matrix = read_csv(RESULTS / "transfer" / policy / "transfer.csv")
+    assert len(matrix) == 24 and len({c["column"] for c in matrix}) == 12
+    [(worst,)] = shown.numbers(rf"^{policy} worst cell: (\S+) % \(.+\)$")
+    assert close(worst, 100 * min(float(c["success_rate"]) for c in matrix), 0.051)
+    [(widest,)] = shown.numbers(rf"^{policy} largest landing error: (\S+) cm$")
+    assert close(widest, max(float(c["landing_error_cm"]) for c in matrix), 0.0051)
+    [(landed, flown)] = shown.numbers(rf"^flown here: {policy} alone in PyFlyt 0.22, floor: (\d+) of (\d+)")
+    assert flown >= 2 and landed >= 0.5 * flown
+    return [float(c["success_rate"]) for c in matrix if c["column"] == "PyFlyt Crazyflie 0.22"]
 
 
 def check_09(shown: Shown) -> None:
