@@ -334,17 +334,18 @@ _QUICK_SLOW_TRACKERS = _QUICK_SMOOTH.replace(
   land in 12 M steps (touchdowns at 0.8 m/s, or hovering; docs/transfer.md).
 * velocity loops with integral action (:data:`TRACKER_INTEGRATOR`, since 2026-11-29 late): a PID tracker's
   integrator carries the approach's error on after the drone has braked. Seed 0 of the preset with it lands 99.5 %
-  in PyFlyt 0.22, where the first version (without it, opening over 30 %) landed 88.5-90.5 %.
+  / 99.5 % in PyFlyt 0.22 (seed 1: 96.0 / 98.0 %), where the first version (without it, opening over 30 %) landed
+  88.5 / 90.5 %; 2.41-2.67 cm from the pad centre there, 0.70-2.38 cm in the other columns but PyFlyt's 0.21.0 order.
 * the family opens over 15 % of the run's steps (``family_opening``,
   :mod:`~marlander_lite.training.family_curriculum`; 30 % in the first version), once 5 % of the recent training
   episodes land (``family_opening_gate``). On the whole family from the first step, seed 0 learnt to land after 9 M
   steps and seeds 1 and 2 never did; opening from the first step over half the run, seeds 1 and 2 learnt and seed 0
   did not; over 30 % of it, neither seed 1 nor 2. Gated, seed 0 opened at 6.2 M steps: over half the run it was 97 %
-  open at the end and landed 82-83 % in PyFlyt 0.22 (200 episodes a row), over 30 % 88.5-90.5 %, over 15 % 88.5-90.0
-  % (without the integrator).
+  open at the end and landed 82-83 % in PyFlyt 0.22 (200 episodes a row), over 30 % 88.5-90.5 %, over 15 %
+  88.5-90.0 % (without the integrator).
 
-Everything else is ``quick-cpu-smooth``'s: 12 M steps, two threads. Alone on the 2-core VM (2026-11-29, night) the
-first version trained in 4.24 min and ``quick-cpu-smooth`` in 3.79 min, one run each
+Everything else is ``quick-cpu-smooth``'s: 12 M steps, two threads. Alone on the 2-core VM (2026-11-29) the preset
+trained in 3.93 min, its first version in 4.24 min and ``quick-cpu-smooth`` in 3.79 min, one run each
 (``benchmarks/results/bench_quick_cpu_*``)."""
 
 PRESETS: dict[str, TrainConfig] = {
