@@ -91,6 +91,7 @@ def test_quick_cpu_slow_trackers_is_quick_cpu_smooth_on_an_opening_slow_tracker_
         ("quick-cpu-slow-trackers-seed1", first_version.replace(seed=1)),
         ("quick-cpu-slow-trackers-integral", preset),
         ("quick-cpu-slow-trackers-integral-seed1", preset.replace(seed=1)),
+        ("quick-cpu-slow-trackers-integral-seed2", preset.replace(seed=2)),
     ):
         record = json.loads((runs / name / "config.json").read_text())
         assert TrainConfig.from_dict(record["train"]) == expected and record["preset"] == "quick-cpu-slow-trackers"

@@ -334,8 +334,9 @@ _QUICK_SLOW_TRACKERS = _QUICK_SMOOTH.replace(
   land in 12 M steps (touchdowns at 0.8 m/s, or hovering; docs/transfer.md).
 * velocity loops with integral action (:data:`TRACKER_INTEGRATOR`, since 2026-11-29 late): a PID tracker's
   integrator carries the approach's error on after the drone has braked. Seed 0 of the preset with it lands 99.5 %
-  / 99.5 % in PyFlyt 0.22 (seed 1: 96.0 / 98.0 %), where the first version (without it, opening over 30 %) landed
-  88.5 / 90.5 %; 2.41-2.67 cm from the pad centre there, 0.70-2.38 cm in the other columns but PyFlyt's 0.21.0 order.
+  / 99.5 % in PyFlyt 0.22 (seeds 1 and 2: 96.0 / 98.0 and 95.5 / 98.0 %), where the first version (without it,
+  opening over 30 %) landed 88.5 / 90.5 %; 2.41-3.18 cm from the pad centre there over the three seeds, 0.70-2.57 cm
+  in the other columns but PyFlyt's 0.21.0 order.
 * the family opens over 15 % of the run's steps (``family_opening``,
   :mod:`~marlander_lite.training.family_curriculum`; 30 % in the first version), once 5 % of the recent training
   episodes land (``family_opening_gate``). On the whole family from the first step, seed 0 learnt to land after 9 M
