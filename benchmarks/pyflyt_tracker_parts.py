@@ -1,13 +1,14 @@
 """Which part of PyFlyt's velocity tracker costs a policy its precision? Each one changed in turn.
 
 A policy that lands 0.6-1.6 cm from its pad centre in ten columns of the transfer matrix lands 2.5-3.5 cm from it in
-PyFlyt 0.22, and 0.7 cm on a point mass given PyFlyt's fitted response (docs/transfer.md, "An integrator in the
-tracker"). PyFlyt's ground-velocity mode is a cascade the point mass does not have: a horizontal velocity PID (``kp``
-0.8, ``ki`` 0.3, ``kd`` 0.5) whose integrator carries past errors forward, an attitude P loop of gain 2 (a 0.5 s time
-constant), and 2 % motor noise. This script flies the floor row of the ``PyFlyt Crazyflie 0.22`` column as published
-and with one part changed at a time (never in the transfer column itself): the velocity integrator off, the attitude
-loop four times faster, the motor noise off; and, for comparison, on the point mass fitted to PyFlyt's response. The
-transfer matrix's episodes, seed 0, Vicon sensing.
+PyFlyt 0.22, and under 1 cm on a point mass given PyFlyt's fitted response (this script's last row; docs/transfer.md,
+"An integrator in the tracker"). PyFlyt's ground-velocity mode is a cascade the point mass does not have: a horizontal
+velocity PID (``kp`` 0.8, ``ki`` 0.3, ``kd`` 0.5) whose integrator carries past errors forward, an attitude P loop of
+gain 2 (a 0.5 s time constant), and 2 % motor noise. This script flies the floor row of the ``PyFlyt Crazyflie 0.22``
+column as published and with one part changed at a time (never in the transfer column itself): the velocity
+integrator off, the attitude loop four times faster, the motor noise off; and, for comparison, on the point mass
+fitted to PyFlyt's response. The transfer matrix's episodes, seed 0, Vicon sensing. (``pyflyt_diagnostics.py`` asks
+the same of what the policy observes: motor noise off, body rates hidden, in 0.21.0's step order.)
 
     python benchmarks/pyflyt_tracker_parts.py POLICY [--episodes 100] [--workers 2]
 """
@@ -37,8 +38,9 @@ PYFLYT_FIT = {
     "max_sink_acceleration": 9.62,
 }
 """The point mass fitted to PyFlyt 0.22's go-and-brake answers (``benchmarks/identify_simulators.py``,
-``benchmarks/results/identify_simulators_2026-11-27-pyflyt-0.22.txt``; its climb of 40 m/s^2 capped at the family's 12):
-a proportional velocity loop, a first-order tilt, no noise."""
+``benchmarks/results/identify_simulators_2026-11-27-pyflyt-0.22.txt``): a proportional velocity loop, a first-order
+tilt, no noise. Its climb of 40 m/s^2 is capped at 12, the training family's largest, so that the row asks only how
+the policy flies a member of the kind it trained on."""
 
 
 def _changed_world(change: str) -> Any:
