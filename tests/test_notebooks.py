@@ -632,9 +632,36 @@ def check_08(shown: Shown) -> None:
     assert loops[0][2] < loops[1][2] < loops[2][2], loops
     on_022 = shown_matrix_and_pyflyt_flight(shown, "quick-cpu-slow-trackers-integral")
     assert min(on_022) > max(pyflyt)  # the integrator's preset lands more of PyFlyt 0.22 than the first version
+    # Section 4o: 20 M steps. The table's PyFlyt 0.22 errors are the csvs'; every seed of 20 M steps lands closer there
+    # than the same seed of 12 M did; over the three seeds' columns but the 0.21.0 order the worst cell and the largest
+    # error are the csvs' and meet the issue's 90 % and 2.26 cm.
+    title = "| run | PyFlyt 0.22, floor / UR10 | landing error there, cm |"
+    runs = {r["run"]: r for r in markdown_rows(title + shown.text.split(title, 1)[1].split("\n\n", 1)[0])}
+    errors = {}
+    for name, r in runs.items():
+        cells = [
+            c for c in read_csv(RESULTS / "transfer" / name / "transfer.csv") if c["column"] == "PyFlyt Crazyflie 0.22"
+        ]
+        errors[name] = [float(e) for e in r["landing error there, cm"].split(" / ")]
+        assert all(close(e, float(c["landing_error_cm"]), 0.0051) for e, c in zip(errors[name], cells, strict=True))
+    for seed in ("", "-seed1", "-seed2"):
+        assert max(errors[f"quick-cpu-slow-trackers-20m{seed}"]) < min(
+            errors[f"quick-cpu-slow-trackers-integral{seed}"]
+        )
+    pattern = r"^20 M steps, three seeds, every column but PyFlyt's 0.21.0 order: worst cell (\S+) %, largest"
+    [(worst, widest)] = shown.numbers(pattern + r" landing error (\S+) cm$")
+    matrices = [
+        RESULTS / "transfer" / f"quick-cpu-slow-trackers-20m{seed}" / "transfer.csv"
+        for seed in ("", "-seed1", "-seed2")
+    ]
+    cells = [c for path in matrices for c in read_csv(path) if c["column"] != "PyFlyt Crazyflie"]
+    assert close(worst, 100 * min(float(c["success_rate"]) for c in cells), 0.051) and worst >= 90.0
+    assert close(widest, max(float(c["landing_error_cm"]) for c in cells), 0.0051) and widest <= 2.26
+    shown_matrix_and_pyflyt_flight(shown, "quick-cpu-slow-trackers-20m")
     # step responses (with and without RotorPy, and with PyFlyt), transfer bars, the pad's acceleration, the late
-    # descent, the swing, the steeper cone's landing errors, PyFlyt held still, the opening family, the integrator
-    assert shown.figures == 11
+    # descent, the swing, the steeper cone's landing errors, PyFlyt held still, the opening family, the integrator,
+    # the landing errors of 12 and 20 M steps in PyFlyt 0.22
+    assert shown.figures == 12
 
 
 def shown_matrix_and_pyflyt_flight(shown: Shown, policy: str) -> list[float]:

@@ -79,19 +79,24 @@ def test_quick_cpu_slow_trackers_is_quick_cpu_smooth_on_an_opening_slow_tracker_
     assert family["max_tilt_deg"] == [12.0, 35.0] and family["max_sink_acceleration"] == [3.0, 9.6]
     assert family["velocity_integral_gain"] == [0.0, 0.8]
     assert (preset.family_opening, preset.family_opening_gate) == (0.15, 0.05)
-    same_otherwise = preset.replace(
+    assert preset.total_steps == 20_000_000
+    twelve_million = preset.replace(total_steps=get_preset("quick-cpu-smooth").total_steps)
+    same_otherwise = twelve_million.replace(
         dynamics=get_preset("quick-cpu-smooth").dynamics, family_opening=0.0, family_opening_gate=0.0
     )
     assert same_otherwise == get_preset("quick-cpu-smooth")
-    first_version = preset.replace(dynamics=SLOW_TRACKERS_FIRST_VERSION, family_opening=0.3)
+    first_version = twelve_million.replace(dynamics=SLOW_TRACKERS_FIRST_VERSION, family_opening=0.3)
     assert "velocity_integral_gain" not in first_version.dynamics["family"]
     runs = Path(__file__).resolve().parents[1] / "data" / "runs"
     for name, expected in (
         ("quick-cpu-slow-trackers", first_version),
         ("quick-cpu-slow-trackers-seed1", first_version.replace(seed=1)),
-        ("quick-cpu-slow-trackers-integral", preset),
-        ("quick-cpu-slow-trackers-integral-seed1", preset.replace(seed=1)),
-        ("quick-cpu-slow-trackers-integral-seed2", preset.replace(seed=2)),
+        ("quick-cpu-slow-trackers-integral", twelve_million),
+        ("quick-cpu-slow-trackers-integral-seed1", twelve_million.replace(seed=1)),
+        ("quick-cpu-slow-trackers-integral-seed2", twelve_million.replace(seed=2)),
+        ("quick-cpu-slow-trackers-20m", preset),
+        ("quick-cpu-slow-trackers-20m-seed1", preset.replace(seed=1)),
+        ("quick-cpu-slow-trackers-20m-seed2", preset.replace(seed=2)),
     ):
         record = json.loads((runs / name / "config.json").read_text())
         assert TrainConfig.from_dict(record["train"]) == expected and record["preset"] == "quick-cpu-slow-trackers"
@@ -193,9 +198,10 @@ def test_quickstart_trains_evaluates_on_both_simulators_and_plots(capsys, tmp_pa
     assert main(["quickstart", "--out", str(out)]) == 0
     printed = capsys.readouterr().out
     config = json.loads((out / "config.json").read_text())
-    assert config["preset"] == "quick-cpu-smooth"
+    assert config["preset"] == "quick-cpu-slow-trackers"
     assert config["train"]["smoothness_temporal"] == 1.0 and config["train"]["platform_height"] == [0.005, 1.0]
     assert config["train"]["task"]["approach_cone_slope"] == 2.0
+    assert config["train"]["dynamics"]["family"]["velocity_integral_gain"] == [0.0, 0.8]
     for name in ("static-floor", "static-elevated", "crazyflie-firmware"):
         summary = json.loads((out / f"evaluation-{name}.json").read_text())
         assert 0.0 <= summary["success_rate"] <= 1.0 and summary["episodes"] > 0

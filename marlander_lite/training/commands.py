@@ -33,7 +33,7 @@ from marlander_lite.training.presets import FINETUNE_PRESETS, PRESETS, TrainConf
 IMAGE_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg")
 """File types ``plot --out`` can write (matplotlib would silently append .png to a name without one)."""
 DEFAULT_PRESET = "quick-cpu"
-QUICKSTART_PRESETS = ("quick-cpu-smooth", "quick-cpu-slow-trackers", "quick-cpu")
+QUICKSTART_PRESETS = ("quick-cpu-slow-trackers", "quick-cpu-smooth", "quick-cpu")
 """What ``marlander quickstart`` may train, its default first."""
 TRAIN_SENSING = ("perfect", "vicon", "noisy", "robust")
 """The observation models a training run may use (``TrainConfig.sensing``)."""
@@ -198,15 +198,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     profiles.add_argument("--force", action="store_true", help="overwrite an existing image")
     profiles.set_defaults(func=run_plot_profiles)
 
-    quick = subparsers.add_parser("quickstart", help="train quick-cpu-smooth, evaluate it and plot its curves")
+    quick = subparsers.add_parser("quickstart", help="train quick-cpu-slow-trackers, evaluate it and plot its curves")
     quick.add_argument("--out", type=Path, default=Path("runs/quickstart"), help="run directory")
     quick.add_argument(
         "--preset",
         choices=QUICKSTART_PRESETS,
         default=QUICKSTART_PRESETS[0],
-        help="quick-cpu-smooth (default: lands in every static column of the transfer matrix but PyFlyt's, 9 min on 2 "
-        "cores), quick-cpu-slow-trackers (the same 12 M steps; also lands alone in PyFlyt, less precisely) or "
-        "quick-cpu (6.5 min, floor pad, 2.7 cm from the pad centre)",
+        help="quick-cpu-slow-trackers (default: 20 M steps, 7 min on 2 cores; lands in every static column of the "
+        "transfer matrix, PyFlyt 0.22 included, but PyFlyt's 0.21.0 order), quick-cpu-smooth (12 M steps, 4-9 min; "
+        "lands in the same columns but PyFlyt's) or quick-cpu (6.5 min, floor pad, 2.7 cm from the pad centre)",
     )
     quick.add_argument("--seed", type=non_negative_int, default=0)
     quick.add_argument("--episodes", type=positive_int, default=500, help="evaluation episodes")

@@ -321,13 +321,19 @@ SLOW_TRACKERS_FIRST_VERSION: dict[str, Any] = {
 """The dynamics of ``quick-cpu-slow-trackers``' first version (shipped as ``quick-cpu-slow-trackers`` and
 ``-seed1``, trained with ``family_opening=0.3``): the slow-tracker family with the thin cushion, no integrator."""
 
+SLOW_TRACKERS_STEPS = 20_000_000
+"""Training steps of ``quick-cpu-slow-trackers`` (12 M until 2026-11-30, ``quick-cpu-smooth``'s): with 12 M steps the
+preset's three seeds landed 2.41-3.18 cm from the pad centre in PyFlyt 0.22, with 20 M steps 1.79-2.10 cm
+(docs/transfer.md, "Twenty million steps")."""
+
 _QUICK_SLOW_TRACKERS = _QUICK_SMOOTH.replace(
     dynamics={"family": {**SLOW_TRACKERS_FIRST_VERSION["family"], "velocity_integral_gain": list(TRACKER_INTEGRATOR)}},
+    total_steps=SLOW_TRACKERS_STEPS,
     family_opening=0.15,
     family_opening_gate=0.05,
 )
 """``quick-cpu-slow-trackers``: ``quick-cpu-smooth`` on a family that reaches PyFlyt's slow loop, so that the
-10-minute policy lands alone in simulators whose tracker answers in up to a second, PyFlyt's included:
+quick policy lands alone in simulators whose tracker answers in up to a second, PyFlyt's included:
 
 * the family of :func:`slow_tracker_family` with horizontal tau up to 1.2 s (PyFlyt's fit: 0.76 s), and the thin
   ground cushion (:data:`THIN_CUSHION`). With the default family's cushion this family from scratch never learnt to
@@ -345,9 +351,14 @@ _QUICK_SLOW_TRACKERS = _QUICK_SMOOTH.replace(
   open at the end and landed 82-83 % in PyFlyt 0.22 (200 episodes a row), over 30 % 88.5-90.5 %, over 15 %
   88.5-90.0 % (without the integrator).
 
-Everything else is ``quick-cpu-smooth``'s: 12 M steps, two threads. Alone on the 2-core VM (2026-11-29) the preset
-trained in 3.93 min, its first version in 4.24 min and ``quick-cpu-smooth`` in 3.79 min, one run each
-(``benchmarks/results/bench_quick_cpu_*``)."""
+* 20 M steps (:data:`SLOW_TRACKERS_STEPS`, since 2026-11-30; 12 M before): three seeds land 91.0-100 % in every cell
+  of the twelve-column transfer matrix, within 2.26 cm in all columns but PyFlyt's 0.21.0 order (0.59-2.10 cm; PyFlyt
+  0.22 1.79-2.10 cm), where the 12 M-step seeds landed 2.41-3.18 cm from the centre in PyFlyt 0.22.
+
+Everything else is ``quick-cpu-smooth``'s: two threads, the same network and aids. Alone on the 2-core VM the preset
+trained in 6.78 min (2026-11-30), its 12 M-step version in 3.93 min, its first version in 4.24 min and
+``quick-cpu-smooth`` in 3.79 min (2026-11-29), one run each (``benchmarks/results/bench_quick_cpu_*``). It is what
+``marlander quickstart`` trains."""
 
 PRESETS: dict[str, TrainConfig] = {
     "quick-cpu": _QUICK,
@@ -384,10 +395,11 @@ FINETUNE_PRESETS = ("crazyflie-finetune", "moving-crazyflie-finetune")
 PRESET_NOTES: dict[str, str] = {
     "quick-cpu": "2 drones, floor pad, point mass with a dynamics family, 128-128 ReLU, 8 M steps: minutes on 2 cores.",
     "quick-cpu-smooth": "quick-cpu on plates of every height with smooth commands and a steeper approach cone, 12 M "
-    "steps, 2 threads: lands in every static column of the transfer matrix, RotorPy included; about 9 min on 2 cores.",
+    "steps, 2 threads: lands in every static column of the transfer matrix but PyFlyt's, RotorPy included; 4-9 min on "
+    "2 cores.",
     "quick-cpu-slow-trackers": "quick-cpu-smooth on a dynamics family that opens to trackers as slow as PyFlyt's "
-    "(tau up to 1.2 s, with integral action) with a thin ground cushion: lands alone in PyFlyt 0.22 too; the same 12 M "
-    "steps.",
+    "(tau up to 1.2 s, with integral action) with a thin ground cushion, 20 M steps: lands alone in every column of "
+    "the transfer matrix, PyFlyt's included; about 7 min on 2 cores (the quickstart's).",
     "paper": "the paper's 512-512-256-128 ReLU policy, 20 M steps, point mass (about 45 min on 2 cores).",
     "crazyflie-finetune": "continue a quick-cpu/paper run in the PyBullet Crazyflie swarm, 3 M steps (~30 min).",
     "moving": "beyond the paper: observes the platform velocity; UR10 arcs at 0-0.6 m/s, floor to 1 m, smooth "
