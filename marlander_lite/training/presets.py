@@ -395,7 +395,7 @@ FINETUNE_PRESETS = ("crazyflie-finetune", "moving-crazyflie-finetune")
 PRESET_NOTES: dict[str, str] = {
     "quick-cpu": "2 drones, floor pad, point mass with a dynamics family, 128-128 ReLU, 8 M steps: minutes on 2 cores.",
     "quick-cpu-smooth": "quick-cpu on plates of every height with smooth commands and a steeper approach cone, 12 M "
-    "steps, 2 threads: lands in every static column of the transfer matrix but PyFlyt's, RotorPy included; 4-9 min on "
+    "steps, 2 threads: lands in every static column of the transfer matrix but PyFlyt's, RotorPy included; 4-13 min on "
     "2 cores.",
     "quick-cpu-slow-trackers": "quick-cpu-smooth on a dynamics family that opens to trackers as slow as PyFlyt's "
     "(tau up to 1.2 s, with integral action) with a thin ground cushion, 20 M steps: lands alone in every column of "
