@@ -38,7 +38,8 @@ from marlander_lite.task import TaskConfig
 GRAVITY = 9.81
 INTEGRAL_ACTION_LIMIT = 0.5
 """Largest speed (m/s, per horizontal axis) the integral action of ``DynamicsFamily.velocity_integral_gain`` may add
-to a command: a tracker's integrator is bounded (anti-windup), or a drone pinned by a wall would wind it up forever."""
+to a command. It clamps the integrator's output, not the integral itself: a drone held back for long (pinned by a
+wall) keeps its boost at this bound, and the integral starts from zero again at every reset and relaunch."""
 
 
 @dataclass(frozen=True)
@@ -428,8 +429,8 @@ class PointMassSwarm:
 
     def _integral_action(self, acting: np.ndarray) -> np.ndarray:
         """``acting`` ``(num_envs, N, 3)`` m/s with the integral action of a PI velocity loop added, in place:
-        ``u + k_i * integral(u - v) dt`` horizontally, the added speed at most :data:`INTEGRAL_ACTION_LIMIT` per axis
-        (the integrator's anti-windup), then this step's error integrated. Nothing without ``velocity_integral_gain``.
+        ``u + k_i * integral(u - v) dt`` horizontally, the added speed clamped at :data:`INTEGRAL_ACTION_LIMIT` per
+        axis, then this step's error integrated. Nothing without ``velocity_integral_gain``.
         """
         if not self._integral_on:
             return acting
