@@ -265,6 +265,47 @@ def test_drones_side_by_side_stay_put_with_downwash_and_one_below_sinks():
     assert abs(sinking["bare"]) < 0.005 and sinking["aero"] < -0.05
 
 
+@pytest.mark.parametrize("engine", ["numpy", "auto"])
+def test_the_published_state_is_pybullets_own_with_one_sign_per_attitude(engine):
+    """pos, quat, vel and ang_vel are what PyBullet reports for each body, the quaternion's sign chosen so that w >= 0
+    (q and -q are one attitude); a command array the caller reuses after the step changes nothing in flight, even
+    when the commands wait in a latency line."""
+    sims = [
+        CrazyflieSwarm(
+            TaskConfig(num_drones=4),
+            PlatformConfig(),
+            physics=PhysicsConfig.preset("bare"),
+            perturbation={"latency_s": 0.05},
+            engine=engine,
+        )
+        for _ in range(2)
+    ]
+    # Drone 1 turned 190 degrees about z: PyBullet's quaternion (0, 0, sin 95, cos 95) has w < 0.
+    turned = (0.0, 0.0, math.sin(math.radians(95.0)), math.cos(math.radians(95.0)))
+    for sim in sims:
+        sim.place(0, np.array([[0.0, 0.0, 1.0], [0.5, 0.0, 1.0], [0.0, 0.5, 1.0], [0.5, 0.5, 1.0]]))
+        p.resetBasePositionAndOrientation(sim.world.drones[1], [0.5, 0.0, 1.0], turned, physicsClientId=sim.client)
+    reused, sim = np.zeros((1, 4, 3)), sims[0]
+    rng, flips = np.random.default_rng(3), 0
+    for _ in range(12):
+        command = rng.uniform(-0.5, 0.5, (1, 4, 3))
+        reused[:] = command
+        sims[0].step(reused)
+        reused[:] = 9.0  # the caller overwrites its array: what is still in the latency line must not change
+        sims[1].step(command.copy())
+        assert np.array_equal(sims[0].pos, sims[1].pos) and np.array_equal(sims[0].vel, sims[1].vel)
+        for i, body in enumerate(sim.world.drones):
+            pos, quat = p.getBasePositionAndOrientation(body, physicsClientId=sim.client)
+            vel, ang_vel = p.getBaseVelocity(body, physicsClientId=sim.client)
+            sign = -1.0 if quat[3] < 0.0 else 1.0
+            flips += sign < 0.0
+            assert sim.pos[0, i].tolist() == list(pos) and sim.vel[0, i].tolist() == list(vel)
+            assert sim.quat[0, i].tolist() == [sign * q for q in quat] and sim.ang_vel[0, i].tolist() == list(ang_vel)
+    assert flips > 0 and (sim.quat[0, :, 3] >= 0.0).all()
+    for sim in sims:
+        sim.close()
+
+
 # ---------------------------------------------------------------------------- landing
 
 

@@ -203,8 +203,9 @@ class CrazyflieSwarm:
         u = np.asarray(velocity, dtype=float)
         if u.shape != (1, self.num_drones, 3):
             raise ValueError(f"velocity must have shape (1, {self.num_drones}, 3) m/s, got {u.shape}.")
-        targets = task.next_target_position(self.pos[0], u[0], self.task.dt).tolist()
-        commands = u[0].tolist()
+        targets, commands = task.next_target_position(self.pos[0], u[0], self.task.dt), u[0].copy()
+        if not self._tick.takes_arrays:  # the reference tick works on Python floats
+            targets, commands = targets.tolist(), commands.tolist()
         self.contact[:] = task.CONTACT_NONE
         self._touched_now = [False] * self.num_drones
         sent, delay, run = (targets, commands), self._delay, self._tick.run
@@ -379,12 +380,11 @@ class CrazyflieSwarm:
 
     def _publish(self) -> None:
         """Copy the working state into the arrays of :meth:`state` (one sign per attitude: w >= 0)."""
-        rows = []
-        for (pos, quat), (vel, ang_vel) in zip(self._poses, self._vels, strict=True):
-            if quat[3] < 0.0:
-                quat = (-quat[0], -quat[1], -quat[2], -quat[3])
-            rows.append((*pos, *quat, *vel, *ang_vel))
-        self._kinematics[0] = rows
+        kinematics = self._kinematics[0]
+        kinematics[:] = self._tick.kinematics(self._poses, self._vels)
+        flipped = kinematics[:, 6] < 0.0
+        if flipped.any():
+            kinematics[flipped, 3:7] = -kinematics[flipped, 3:7]
         if self.landed.any():
             mask = self.landed[0]
             self.vel[0, mask] = self.pad_vel[0, mask]

@@ -60,6 +60,26 @@ class ControlTick:
         self.physics, self.params, self.controller, self.motor_lag = physics, params, controller, motor_lag
         self._half_x, self._half_y = plate_half
         self._rotors = tuple(tuple(rotor) for rotor in params.rotor_positions.tolist())
+        self._kinematics_of: tuple[list, list, np.ndarray] | None = None
+
+    takes_arrays = False
+    """Whether :meth:`run` also takes ``targets`` and ``commands`` as ``(N, 3)`` arrays (lists of 3 floats always)."""
+
+    def kinematics(self, poses: list, vels: list) -> np.ndarray:
+        """Every drone's ``(pos, quat, vel, ang_vel)`` from PyBullet's tuples as one ``(N, 13)`` array (m, x y z w,
+        m/s, rad/s), world frame.
+
+        The simulator reads new lists at every tick and never changes one it has read, so the last pair's array is
+        kept and handed out again when the same pair comes back (the compiled tick and the published state share
+        one conversion). Do not write into it.
+        """
+        held = self._kinematics_of
+        if held is None or held[0] is not poses or held[1] is not vels:
+            n = len(poses)
+            rows = (a + b + c + d for (a, b), (c, d) in zip(poses, vels, strict=True))
+            kin = np.fromiter(chain.from_iterable(rows), float, 13 * n).reshape(n, 13)
+            held = self._kinematics_of = (poses, vels, kin)
+        return held[2]
 
     def rotor_speeds(self, value: float) -> list[list[float]]:
         """Rotor speeds of every drone, all ``value`` (RPM), in the form :meth:`run` takes: a list of lists."""
@@ -185,7 +205,11 @@ class CompiledTick(ControlTick):
         """Rotor speeds of every drone, all ``value`` (RPM), in the form :meth:`run` takes: ``(N, 4)``."""
         return np.full((self._num_drones, 4), float(value))
 
-    def _array(self, role: str, values: list, dtype: type) -> np.ndarray:
+    takes_arrays = True
+
+    def _array(self, role: str, values: list | np.ndarray, dtype: type) -> np.ndarray:
+        if isinstance(values, np.ndarray):
+            return values
         held = self._inputs.get(role)
         if held is None or held[0] is not values:
             held = self._inputs[role] = (values, np.array(values, dtype=dtype))
@@ -204,10 +228,9 @@ class CompiledTick(ControlTick):
         forces: list,
         torques: list,
     ) -> None:
-        """:meth:`ControlTick.run`, with ``rpm`` and ``rpm_command`` the ``(N, 4)`` arrays of :meth:`rotor_speeds`."""
-        n = self._num_drones
-        rows = (a + b + c + d for (a, b), (c, d) in zip(poses, vels, strict=True))
-        kin = np.fromiter(chain.from_iterable(rows), float, 13 * n).reshape(n, 13)  # pos, quat, vel, ang_vel
+        """:meth:`ControlTick.run`, with ``rpm`` and ``rpm_command`` the ``(N, 4)`` arrays of :meth:`rotor_speeds`;
+        ``targets`` and ``commands`` may also be ``(N, 3)`` float arrays, which are read as they are (not copied)."""
+        kin = self.kinematics(poses, vels)
         ids = self._array("active", active, np.int64)
         px, py, pz = plate_pos
         work = (*self._aero, rpm, rpm_command, self._effective, self._thrusts, self._rot, self._forces, self._torques)
