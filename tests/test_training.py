@@ -102,6 +102,18 @@ def test_quick_cpu_slow_trackers_is_quick_cpu_smooth_on_an_opening_slow_tracker_
         assert TrainConfig.from_dict(record["train"]) == expected and record["preset"] == "quick-cpu-slow-trackers"
 
 
+def test_paper_slow_trackers_is_the_quick_recipe_with_the_papers_network_and_its_run_recorded_it():
+    from pathlib import Path
+
+    preset = get_preset("paper-slow-trackers")
+    assert preset.net_arch == (512, 512, 256, 128)  # the paper's Fig. 3 network, written out
+    assert preset == get_preset("quick-cpu-slow-trackers").replace(net_arch=preset.net_arch)
+    # Trained as `marlander train --preset quick-cpu-slow-trackers --net-arch 512 512 256 128`, before the preset.
+    run = Path(__file__).resolve().parents[1] / "data" / "runs" / "paper-slow-trackers" / "config.json"
+    record = json.loads(run.read_text())
+    assert TrainConfig.from_dict(record["train"]) == preset and record["preset"] == "quick-cpu-slow-trackers"
+
+
 @pytest.mark.parametrize(
     ("change", "message"),
     [

@@ -360,6 +360,15 @@ trained in 6.78 min (2026-11-30), its 12 M-step version in 3.93 min, its first v
 ``quick-cpu-smooth`` in 3.79 min (2026-11-29), one run each (``benchmarks/results/bench_quick_cpu_*``). It is what
 ``marlander quickstart`` trains."""
 
+_PAPER_SLOW_TRACKERS = _QUICK_SLOW_TRACKERS.replace(net_arch=PAPER_NET)
+"""``paper-slow-trackers``: the paper's network (:data:`PAPER_NET`, 512-512-256-128) trained by the quickstart's recipe,
+``quick-cpu-slow-trackers``, with nothing else changed (the 64-64 critic included). Its seed 0 (2026-11-30, 51.5 min
+on 2 cores; the family opened at 7.0 M steps, the small network's at 4.4 M) lands alone 96.0-99.5 % in every cell of
+the twelve-column transfer matrix, Wilson lower bounds 92.3 % and above, at 0.70-1.55 cm in eleven columns (PyFlyt
+0.22: 1.42 / 1.41 cm) and 3.61 / 3.45 cm in PyFlyt's 0.21.0 order. ``paper-robust-smooth`` (the ``paper`` preset's
+recipe, fine-tuned with smooth commands) lands 0-2 % alone in PyFlyt, and an 8 M-step fine-tune of it on this family
+landed nobody (touchdowns at 0.6-1 m/s; docs/transfer.md)."""
+
 PRESETS: dict[str, TrainConfig] = {
     "quick-cpu": _QUICK,
     "quick-cpu-smooth": _QUICK_SMOOTH,
@@ -375,6 +384,7 @@ PRESETS: dict[str, TrainConfig] = {
         lr_schedule="linear",
         checkpoint_every=2_000_000,
     ),
+    "paper-slow-trackers": _PAPER_SLOW_TRACKERS,
     "crazyflie-finetune": _FINETUNE,
     "moving": _QUICK.replace(
         total_steps=16_000_000,
@@ -401,6 +411,8 @@ PRESET_NOTES: dict[str, str] = {
     "(tau up to 1.2 s, with integral action) with a thin ground cushion, 20 M steps: lands alone in every column of "
     "the transfer matrix, PyFlyt's included; about 7 min on 2 cores (the quickstart's).",
     "paper": "the paper's 512-512-256-128 ReLU policy, 20 M steps, point mass (about 45 min on 2 cores).",
+    "paper-slow-trackers": "the paper's 512-512-256-128 policy on the quick-cpu-slow-trackers recipe, 20 M steps: "
+    "lands alone in every column of the transfer matrix; about 50 min on 2 cores.",
     "crazyflie-finetune": "continue a quick-cpu/paper run in the PyBullet Crazyflie swarm, 3 M steps (~30 min).",
     "moving": "beyond the paper: observes the platform velocity; UR10 arcs at 0-0.6 m/s, floor to 1 m, smooth "
     "commands, 16 M steps.",
