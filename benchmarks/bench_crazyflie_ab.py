@@ -13,12 +13,11 @@ ratio to the loop. Printed: per setting (tracker / physics), the medians over ``
 
 from __future__ import annotations
 
-import argparse
 import json
 import statistics
-import subprocess
-import sys
 from pathlib import Path
+
+from bench_pointmass_ab import parse_checkouts, run_measurement  # the A/B plumbing both scripts share
 
 SETTINGS = (("pid", "bare"), ("pid", "aero"), ("firmware", "bare"))
 MEASURE = r"""
@@ -61,31 +60,14 @@ print(json.dumps({"step_us": 1e6 * statistics.median(times["step"]), "bare_x": r
 
 def measure(checkout: Path, controller: str, physics: str) -> dict[str, float]:
     """Step time (us) and step / bare loop of ``checkout``'s 16-drone swarm, in a fresh process."""
-    done = subprocess.run(
-        [sys.executable, "-c", MEASURE, str(checkout), controller, physics],
-        capture_output=True,
-        text=True,
-        cwd="/",
-        check=False,
-    )
-    if done.returncode:
-        raise SystemExit(f"measuring {checkout} failed:\n{done.stderr[-2000:]}")
-    return json.loads(done.stdout.strip().splitlines()[-1])
+    return json.loads(run_measurement(checkout, MEASURE, controller, physics).strip().splitlines()[-1])
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--base", type=Path, required=True, help="the checkout before the change")
-    parser.add_argument("--new", type=Path, default=Path("."), help="the checkout with the change (default: here)")
-    parser.add_argument("--rounds", type=int, default=3)
-    args = parser.parse_args()
-    checkouts = {"base": args.base.resolve(), "new": args.new.resolve()}
-    for path in checkouts.values():
-        if not (path / "marlander_lite" / "__init__.py").is_file():
-            parser.error(f"{path} holds no marlander_lite package")
+    checkouts, rounds = parse_checkouts(__doc__.splitlines()[0], rounds=3)
     for controller, physics in SETTINGS:
         runs: dict[str, list[dict[str, float]]] = {name: [] for name in checkouts}
-        for _ in range(args.rounds):
+        for _ in range(rounds):
             for name, path in checkouts.items():
                 runs[name].append(measure(path, controller, physics))
         step = {name: statistics.median(r["step_us"] for r in runs[name]) for name in checkouts}
@@ -93,7 +75,7 @@ def main() -> None:
         print(
             f"16 drones, {controller} / {physics}: base {step['base']:.0f} us ({bare_x['base']:.2f} x bare), "
             f"new {step['new']:.0f} us ({bare_x['new']:.2f} x bare); base / new {step['base'] / step['new']:.2f} "
-            f"(medians of {args.rounds} processes each)",
+            f"(medians of {rounds} processes each)",
             flush=True,
         )
 

@@ -40,39 +40,46 @@ print(envs * drones / sorted(runs)[2] / 1e6)
 """
 
 
-def drone_steps_per_second(checkout: Path, envs: int, drones: int) -> float:
-    """Million drone-steps per CPU second of ``checkout``'s VecEnv (median of 5 x 60 steps), in a fresh process."""
+def run_measurement(checkout: Path, code: str, *args: str) -> str:
+    """What ``code`` prints (``python -c code CHECKOUT ARGS...``), run in a fresh process for ``checkout``."""
     done = subprocess.run(
-        [sys.executable, "-c", MEASURE, str(checkout), str(envs), str(drones)],
-        capture_output=True,
-        text=True,
-        cwd="/",
-        check=False,
+        [sys.executable, "-c", code, str(checkout), *args], capture_output=True, text=True, cwd="/", check=False
     )
     if done.returncode:
         raise SystemExit(f"measuring {checkout} failed:\n{done.stderr[-2000:]}")
-    return float(done.stdout)
+    return done.stdout
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def parse_checkouts(description: str, rounds: int) -> tuple[dict[str, Path], int]:
+    """The command line of an A/B script: ``{"base": path, "new": path}`` (each holding the package) and the rounds."""
+    parser = argparse.ArgumentParser(description=description)
     parser.add_argument("--base", type=Path, required=True, help="the checkout before the change")
     parser.add_argument("--new", type=Path, default=Path("."), help="the checkout with the change (default: here)")
-    parser.add_argument("--rounds", type=int, default=5)
+    parser.add_argument("--rounds", type=int, default=rounds)
     args = parser.parse_args()
     checkouts = {"base": args.base.resolve(), "new": args.new.resolve()}
     for path in checkouts.values():
         if not (path / "marlander_lite" / "__init__.py").is_file():
             parser.error(f"{path} holds no marlander_lite package")
+    return checkouts, args.rounds
+
+
+def drone_steps_per_second(checkout: Path, envs: int, drones: int) -> float:
+    """Million drone-steps per CPU second of ``checkout``'s VecEnv (median of 5 x 60 steps), in a fresh process."""
+    return float(run_measurement(checkout, MEASURE, str(envs), str(drones)))
+
+
+def main() -> None:
+    checkouts, rounds = parse_checkouts(__doc__.splitlines()[0], rounds=5)
     for envs, drones in SIZES:
         rates: dict[str, list[float]] = {name: [] for name in checkouts}
-        for _ in range(args.rounds):
+        for _ in range(rounds):
             for name, path in checkouts.items():
                 rates[name].append(drone_steps_per_second(path, envs, drones))
         base, new = (statistics.median(rates[name]) for name in checkouts)
         print(
             f"{envs} x {drones}: base {base:.2f}, new {new:.2f} M drone-steps per CPU second (medians of "
-            f"{args.rounds}), new / base {new / base:.2f}"
+            f"{rounds}), new / base {new / base:.2f}"
         )
 
 
