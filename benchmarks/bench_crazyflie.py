@@ -46,15 +46,11 @@ import pybullet as p
 
 import marlander_lite  # registers the gymnasium ids
 from marlander_lite.crazyflie import CrazyflieSwarm, PhysicsConfig
+from marlander_lite.crazyflie.timing import bare_physics, hover_grid, with_gravity_off
 from marlander_lite.platforms import PlatformConfig
 from marlander_lite.task import TaskConfig
 
 ENV_ID = "marlander_lite/CrazyflieLanding-v0"
-
-
-def hover_grid(num_drones: int) -> np.ndarray:
-    """Level at 1.5 m on a 0.5 m grid, 4 drones a row, ``(N, 3)``."""
-    return np.array([(0.5 * (i % 4) - 0.75, 0.5 * (i // 4) - 0.25, 1.5) for i in range(num_drones)])
 
 
 def hovering_swarm(
@@ -107,19 +103,6 @@ def ratio(runs: dict, over: str, under: str) -> float:
     return statistics.median(a / b for a, b in zip(runs[over], runs[under], strict=True))
 
 
-def bare_physics(sim: CrazyflieSwarm) -> callable:
-    """One policy period of bare PyBullet stepping over the simulator's own bodies (gravity off)."""
-    ticks = round(sim.physics.control_hz / sim.task.policy_hz)
-
-    cid = sim.client
-
-    def run() -> None:
-        for _ in range(ticks):
-            p.stepSimulation(cid)
-
-    return run
-
-
 def api_floor(sim: CrazyflieSwarm) -> callable:
     """The bare loop plus the PyBullet calls a controller ticking at ``control_hz`` cannot avoid."""
     ticks = round(sim.physics.control_hz / sim.task.policy_hz)
@@ -136,17 +119,6 @@ def api_floor(sim: CrazyflieSwarm) -> callable:
             for body in bodies:
                 p.getBasePositionAndOrientation(body, cid)
                 p.getBaseVelocity(body, cid)
-
-    return run
-
-
-def with_gravity_off(sim: CrazyflieSwarm, fn) -> callable:
-    def run() -> None:
-        p.setGravity(0, 0, 0, physicsClientId=sim.client)
-        try:
-            fn()
-        finally:
-            p.setGravity(0, 0, -9.81, physicsClientId=sim.client)
 
     return run
 

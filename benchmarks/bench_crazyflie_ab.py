@@ -5,7 +5,8 @@ at the same time: this script times the same hovering 16-drone swarms for ``--ba
 holding the repository, e.g. ``git worktree add /tmp/base HEAD~1``) in alternating subprocesses, so that a background
 load hits both alike. Each measurement takes turns within its process between the simulator step (numba engine, one
 policy period at 24 Hz) and a bare ``stepSimulation`` loop over the same bodies (gravity off, the same number of calls,
-as ``bench_crazyflie.bare_physics``), 5 rounds of about 1 s each, and reports the medians of the step's time and of its
+as ``marlander_lite.crazyflie.timing.bare_step_loop``; written out here, since the base checkout may predate it), 5
+rounds of about 1 s each, and reports the medians of the step's time and of its
 ratio to the loop. Printed: per setting (tracker / physics), the medians over ``--rounds`` processes of each checkout.
 
     python benchmarks/bench_crazyflie_ab.py --base /tmp/base --new . [--rounds 3]

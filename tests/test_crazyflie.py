@@ -604,3 +604,24 @@ def test_controller_rejects_gains_it_cannot_use():
         CascadedPID(CF2XParams(), PIDGains(att_d=(0.0, 1.0, 1.0)), 1, 1 / 48)
     with pytest.raises(ValueError, match="mass"):
         CF2XParams(mass=-1.0)
+
+
+def test_the_bare_step_loop_runs_the_swarms_physics_without_gravity_and_puts_gravity_back():
+    """``timing.bare_step_loop``, what the speed target is measured against: one policy step of physics in which a drone
+    at rest stays put (no gravity, no thrust), after which gravity acts again (a drone without thrust falls)."""
+    from marlander_lite.crazyflie.timing import bare_step_loop, hover_grid
+
+    sim = make_sim(num_drones=2)
+    grid = hover_grid(2)
+    assert grid.shape == (2, 3) and np.all(grid[:, 2] == 1.5) and np.linalg.norm(grid[0] - grid[1]) == 0.5
+    sim.place(0, grid)
+    loop = bare_step_loop(sim)
+    for _ in range(24):
+        loop()
+    for body, start in zip(sim.world.drones, grid, strict=True):
+        pos, _ = p.getBasePositionAndOrientation(body, physicsClientId=sim.client)
+        assert np.allclose(pos, start, atol=1e-9)
+    p.stepSimulation(physicsClientId=sim.client)  # 1/48 s with gravity and no force: v = -g t
+    vel, _ = p.getBaseVelocity(sim.world.drones[0], physicsClientId=sim.client)
+    assert vel[2] == pytest.approx(-G / sim.physics.control_hz, rel=1e-6)
+    sim.close()
