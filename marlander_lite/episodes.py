@@ -197,6 +197,10 @@ class LandingEpisodes:
         """Each pad's acceleration ``(num_envs, N, 3)`` m/s^2 as estimated from the observed pad velocities, zero after
         a reset: observed last with ``TaskConfig.observe_platform_acceleration``, as the deployment loop does."""
         self._seen_pad_vel = np.zeros((e, n, 3))
+        self.carried_acceleration = np.zeros((e, n, 3))
+        """Each pad's acceleration ``(num_envs, N, 3)`` m/s^2 estimated from its velocity at each command, zero after a
+        reset: the lead of a pad-frame command (``TaskConfig.pad_frame_lead``)."""
+        self._carried_pad_vel = np.zeros((e, n, 3))
         # The frames are stacked last, from what the policy would see now (TaskConfig.observation_history).
         self.history = ObservationHistory(self.task.observation_history, (e, n), self.task.frame_per_drone)
         self._channel_width = channel_width
@@ -235,6 +239,20 @@ class LandingEpisodes:
         self.pad_acceleration = acceleration_step(self.pad_acceleration, self._seen_pad_vel, pad_vel, self.task.dt)
         self._seen_pad_vel = pad_vel.copy()
         return self._with_acceleration(seen)
+
+    def _carried_pad_velocity(self) -> np.ndarray:
+        """The pad velocity a pad-frame command carries, ``(num_envs, N, 3)`` m/s: each pad's velocity now, led by
+        ``TaskConfig.pad_frame_lead`` times its acceleration estimated from its velocity at each command
+        (:func:`acceleration_step`, the deployment loop's estimate)."""
+        pad_vel = self.sim.state().pad_vel
+        lead = self.task.pad_frame_lead
+        if not lead:
+            return pad_vel
+        self.carried_acceleration = acceleration_step(
+            self.carried_acceleration, self._carried_pad_vel, pad_vel, self.task.dt
+        )
+        self._carried_pad_vel = np.array(pad_vel)
+        return pad_vel + lead * self.carried_acceleration
 
     def _measure(self, s: SwarmState, command: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         rel_pos = s.pos - (s.pad_pos + self._goal_lift)
@@ -306,6 +324,9 @@ class LandingEpisodes:
         if self._observes_acceleration:
             self.pad_acceleration[ids] = 0.0
             self._seen_pad_vel[ids] = seen[..., PLATFORM_VELOCITY]
+        if self.task.pad_frame_lead:
+            self.carried_acceleration[ids] = 0.0
+            self._carried_pad_vel[ids] = self.sim.state().pad_vel[ids]
         return self.history.reset(self._with_acceleration(seen, ids), ids)
 
     def relaunch(self, drones: np.ndarray) -> np.ndarray:
@@ -340,6 +361,8 @@ class LandingEpisodes:
         velocity = task.action_to_velocity(action, self.num_drones, cfg.max_speed)
         if velocity.shape[0] != self.num_envs:
             raise ValueError(f"Action batch has {velocity.shape[0]} environments; expected {self.num_envs}.")
+        if cfg.command_frame != "world":
+            velocity = task.in_command_frame(velocity, cfg, self._carried_pad_velocity())
         self.sim.step(velocity)
         s = self.sim.state()
         active = ~self.landed

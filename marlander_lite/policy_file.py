@@ -46,6 +46,7 @@ from safetensors.numpy import load_file, save_file
 
 from marlander_lite.task import (
     ACT_PER_DRONE,
+    COMMAND_FRAMES,
     MAX_OBSERVATION_HISTORY,
     OBS_LIMITS,
     OBS_PER_DRONE,
@@ -179,6 +180,18 @@ class PolicyContract:
             "observe_platform_acceleration": acceleration,
             "observation_history": history,
         }
+
+    def interface_options(self) -> dict[str, bool | int | str]:
+        """:meth:`observation_options` and the frame the policy's commands are read in (``TaskConfig.command_frame``
+        and ``pad_frame_lead``; files written before them: ``"world"``, the paper's, and no lead): every
+        ``TaskConfig`` field a loop flying the policy must follow."""
+        frame = self.task.get("command_frame", "world")
+        if frame not in COMMAND_FRAMES:
+            raise PolicyFileError(f"task.command_frame must be one of {', '.join(COMMAND_FRAMES)}, got {frame!r}")
+        lead = self.task.get("pad_frame_lead", 0.0)
+        if isinstance(lead, bool) or not isinstance(lead, int | float) or not 0.0 <= lead <= 2.0:
+            raise PolicyFileError(f"task.pad_frame_lead must be a number from 0 to 2 (s), got {lead!r}")
+        return {**self.observation_options(), "command_frame": frame, "pad_frame_lead": float(lead)}
 
     def check_observation(self) -> None:
         """Raise :class:`PolicyFileError` unless ``obs_per_drone`` is what :meth:`observation_options` ask for."""

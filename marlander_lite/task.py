@@ -12,7 +12,7 @@ Paper symbol -> code:
 
 =====================  ===============================================================
 eq. 2  ``O_t^i``       :func:`observe` -> ``(..., 13)``: ``[p, q, v, omega]``
-eq. 3  ``A_t^i``       :func:`action_to_velocity`, :func:`next_target_position`
+eq. 3  ``A_t^i``       :func:`action_to_velocity`, :func:`command_velocity`, :func:`next_target_position`
 eq. 4  ``R_t``         :func:`team_reward`
 eq. 5  ``r_t^i``       :func:`drone_rewards` (``alpha``, ``beta``, ``c``)
 eq. 6  ``r^c``         :func:`collision_penalty` (``alpha_c``), :func:`min_separation`
@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -46,6 +46,11 @@ OBS_LIMITS = (20.0, 1.0, 50.0, 200.0)
 """Bounds of |p| (m), |q|, |v| (m/s), |omega| (rad/s) per component: observations are clipped to
 them. Only a crash or a drone far outside the arena reaches them."""
 
+
+CommandFrame = Literal["world", "pad"]
+COMMAND_FRAMES: tuple[str, ...] = ("world", "pad")
+"""The frames eq. 3's velocity command may be read in (``TaskConfig.command_frame``): the paper's world frame, or
+relative to the drone's pad."""
 
 MAX_OBSERVATION_HISTORY = 8
 """The most frames ``TaskConfig.observation_history`` may stack."""
@@ -181,6 +186,19 @@ class TaskConfig:
     and turns instead of trailing it. Needs ``observe_platform_velocity``. Off in every shipped policy: the ``moving``
     preset trained with it landed less on moving pads, with motion capture's noise and without it
     (docs/transfer.md)."""
+    command_frame: CommandFrame = "world"
+    """Beyond the paper: the frame of eq. 3's velocity command. ``"world"`` (the paper): ``u = a v_max``. ``"pad"``:
+    ``u = v_pad + a v_max``, each axis within ``+-v_max`` (:func:`command_velocity`): the policy commands its velocity
+    relative to its pad, the frame eq. 2 already measures ``v`` in, and the loop carries the pad's own motion (a
+    feed-forward of the pad velocity, as the PID + APF baseline has). Identical on pads at rest. In simulation
+    ``v_pad`` is the pad's velocity; in the deployment loop the motion-capture estimate of it. A policy file keeps
+    its frame; ``marlander transfer --command-frame`` flies one in the other (docs/transfer.md)."""
+    pad_frame_lead: float = 0.0
+    """Beyond the paper, with ``command_frame`` ``"pad"``: ``T_lead`` (s), how far ahead the pad velocity a command
+    carries is taken, ``v_pad + T_lead a_pad``, ``a_pad`` each pad's acceleration estimated from its velocity at each
+    command as the deployment loop estimates it (:mod:`marlander_lite.swarm.pad_acceleration`). A tracker that lags
+    by about ``T_lead`` then keeps up with a pad that brakes, reverses or turns, as the safety filter's ``pad_lead``
+    does for world-frame policies. 0 to 2 s; 0: no lead."""
     observation_history: int = 1
     """Beyond the paper: ``H``, how many of a drone's latest observation frames its observation holds, newest first
     (``H`` times :attr:`frame_per_drone` numbers; 1 to 8). A memoryless policy sees one instant; a few frames show it
@@ -243,6 +261,14 @@ class TaskConfig:
                 and not isinstance(self.observation_history, bool)
                 and 1 <= self.observation_history <= MAX_OBSERVATION_HISTORY,
                 f"observation_history must be an integer from 1 to {MAX_OBSERVATION_HISTORY} (frames)",
+            ),
+            (
+                self.command_frame in COMMAND_FRAMES,
+                f"command_frame must be one of {', '.join(COMMAND_FRAMES)}",
+            ),
+            (
+                0.0 <= self.pad_frame_lead <= 2.0 and (self.pad_frame_lead == 0.0 or self.command_frame == "pad"),
+                "pad_frame_lead must be from 0 to 2 s, and above 0 only with command_frame='pad'",
             ),
             (
                 self.pad_assignment in PAD_ASSIGNMENTS,
@@ -384,6 +410,29 @@ def action_to_velocity(action: Any, num_drones: int, max_speed: float) -> np.nda
     elif np.isfinite(a).all():
         return np.clip(a.astype(np.float64, copy=False), -1.0, 1.0) * max_speed
     raise ValueError(f"Action contains NaN or infinite values: {np.asarray(action)!r}. Every entry must be finite.")
+
+
+def command_velocity(action: Any, cfg: TaskConfig, pad_velocity: np.ndarray) -> np.ndarray:
+    """Eq. 3 in the task's command frame: normalised actions -> velocity commands ``u`` ``(num_envs, N, 3)`` m/s
+    (:func:`action_to_velocity`, then :func:`in_command_frame`)."""
+    return in_command_frame(action_to_velocity(action, cfg.num_drones, cfg.max_speed), cfg, pad_velocity)
+
+
+def in_command_frame(velocity: np.ndarray, cfg: TaskConfig, pad_velocity: np.ndarray) -> np.ndarray:
+    """Eq. 3's ``a v_max`` ``(num_envs, N, 3)`` m/s as the command flown in ``cfg.command_frame``.
+
+    ``"world"`` (the paper): ``velocity`` itself. ``"pad"``: ``velocity`` plus each drone's pad velocity
+    ``pad_velocity`` (the same shape, or broadcast to it; m/s), written into ``velocity`` (its memory layout stays)
+    and each axis clipped to ``+-max_speed`` as eq. 3 clips the action: a drone hovering relative to its pad (action
+    0) follows the pad.
+    """
+    if cfg.command_frame == "world":
+        return velocity
+    pad_velocity = np.asarray(pad_velocity, dtype=np.float64)
+    if not np.isfinite(pad_velocity).all():
+        raise ValueError("The pad velocity is not finite: a pad-frame command cannot be formed from it.")
+    np.add(velocity, pad_velocity, out=velocity)
+    return np.clip(velocity, -cfg.max_speed, cfg.max_speed, out=velocity)
 
 
 def next_target_position(pos: np.ndarray, velocity: np.ndarray, dt: float) -> np.ndarray:

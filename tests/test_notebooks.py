@@ -677,10 +677,48 @@ def check_08(shown: Shown) -> None:
         for c in read_csv(RESULTS / "transfer" / f"paper-robust-smooth{f}" / "transfer.csv")
     ]
     assert len(before) == 4 and max(float(c["success_rate"]) for c in before) < 0.1 < 0.9 < min(on_022)
+    # Section 4q: commands relative to the pad. Action 0 keeps a drone with its pad only in the pad frame; each moving
+    # matrix's count of cells at 90 %, worst cell and largest error are its csv's; the world-frame cells shown are
+    # paper-slow-trackers-moving's, and in the pad frame the same policy lands far more of them, untrained.
+    text = shown.text
+    carried = dict(
+        re.findall(r"^action 0 for 1 s in the (\w+) frame: drone speed relative to its pad (\S+) m/s", text, re.M)
+    )
+    assert float(carried["world"]) > 0.3 > 0.1 > float(carried["pad"])
+    for name in ("quick-cpu-slow-trackers-20m-pad-frame", "paper-slow-trackers-pad-frame", "moving-slow-trackers"):
+        cells = [c for c in transfer_csv(name) if c["row"].startswith(("arc", "line"))]
+        pattern = rf"^{name}, moving rows: (\d+) of (\d+) cells at 90 % or more; worst (\S+) % \(.+\); "
+        [(at_90, count, worst, widest)] = shown.numbers(pattern + r"largest landing error (\S+) cm$")
+        assert count == len(cells) == 24 and at_90 == sum(float(c["success_rate"]) >= 0.9 for c in cells), name
+        assert close(worst, 100 * min(float(c["success_rate"]) for c in cells), 0.051), name
+        assert close(widest, max(float(c["landing_error_cm"]) for c in cells), 0.0051), name
+    world = {(c["row"], c["column"]): c for c in transfer_csv("paper-slow-trackers-moving")}
+    pad = {(c["row"], c["column"]): c for c in transfer_csv("paper-slow-trackers-pad-frame")}
+    pattern = r"^paper-slow-trackers, (.+ m/s), (.+): world frame (\S+) %, pad frame (\S+) %$"
+    compared = re.findall(pattern, text, re.M)
+    assert len(compared) == len(world) == 4
+    for row, column, in_world, in_pad in compared:
+        assert close(float(in_world), 100 * float(world[row, column]["success_rate"]), 0.051)
+        assert close(float(in_pad), 100 * float(pad[row, column]["success_rate"]), 0.051)
+        assert float(in_pad) > float(in_world) + 50
+    static = [c for c in transfer_csv("moving-slow-trackers") if c["row"] in ("floor", "UR10")]
+    pattern = r"^moving-slow-trackers, static rows: worst (\S+) %, largest landing error (\S+) cm$"
+    [(worst, widest)] = shown.numbers(pattern)
+    assert close(worst, 100 * min(float(c["success_rate"]) for c in static), 0.051)
+    assert close(widest, max(float(c["landing_error_cm"]) for c in static), 0.0051)
+    pattern = r"^flown here: moving-slow-trackers on the firmware tracker's moving line: (\d+) of (\d+)"
+    [(landed, flown)] = shown.numbers(pattern)
+    assert flown >= 2 and landed >= 0.5 * flown
     # step responses (with and without RotorPy, and with PyFlyt), transfer bars, the pad's acceleration, the late
     # descent, the swing, the steeper cone's landing errors, PyFlyt held still, the opening family, the integrator,
-    # the landing errors of 12 and 20 M steps in PyFlyt 0.22, the two networks on the same recipe
-    assert shown.figures == 13
+    # the landing errors of 12 and 20 M steps in PyFlyt 0.22, the two networks on the same recipe, moving pads in the
+    # pad frame
+    assert shown.figures == 14
+
+
+def transfer_csv(name: str) -> list[dict[str, str]]:
+    """The cells of the shipped matrix ``data/results/transfer/NAME``."""
+    return read_csv(RESULTS / "transfer" / name / "transfer.csv")
 
 
 def shown_matrix_and_pyflyt_flight(shown: Shown, policy: str) -> list[float]:

@@ -14,6 +14,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from marlander_lite.cli import main
 from marlander_lite.plotting import plot_training_curves, read_progress
 from marlander_lite.policy_file import load_policy
+from marlander_lite.task import OBSERVATION_OPTIONS
 from marlander_lite.training.evaluation import run_episodes, summarise
 from marlander_lite.training.presets import PRESETS, SLOW_TRACKERS_FIRST_VERSION, TrainConfig, get_preset
 from marlander_lite.training.resume import TrainingInterrupted
@@ -112,6 +113,23 @@ def test_paper_slow_trackers_is_the_quick_recipe_with_the_papers_network_and_its
     run = Path(__file__).resolve().parents[1] / "data" / "runs" / "paper-slow-trackers" / "config.json"
     record = json.loads(run.read_text())
     assert TrainConfig.from_dict(record["train"]) == preset and record["preset"] == "quick-cpu-slow-trackers"
+
+
+def test_the_shipped_moving_slow_trackers_run_is_its_preset_continued_from_the_quickstart_run():
+    from pathlib import Path
+
+    # Trained as `marlander train --preset moving-slow-trackers --init-from data/runs/quick-cpu-slow-trackers-20m
+    # --torch-threads 1`: 6 M steps on top of the source's 20 M, commands in the pad frame led by 0.5 s.
+    run = Path(__file__).resolve().parents[1] / "data" / "runs" / "moving-slow-trackers" / "config.json"
+    record = json.loads(run.read_text())
+    preset = get_preset("moving-slow-trackers")
+    observation = {f: False for f in OBSERVATION_OPTIONS} | {"observation_history": 1}  # the source's, kept
+    expected = preset.replace(
+        init_from="data/runs/quick-cpu-slow-trackers-20m", torch_threads=1, task={**preset.task, **observation}
+    )
+    assert TrainConfig.from_dict(record["train"]) == expected and record["preset"] == "moving-slow-trackers"
+    assert record["task"]["command_frame"] == "pad" and record["task"]["pad_frame_lead"] == 0.5
+    assert record["finished"]["steps"] == 26_017_792  # the source's 20 M steps and 6 M more
 
 
 @pytest.mark.parametrize(

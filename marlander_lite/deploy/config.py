@@ -219,11 +219,13 @@ class LabConfig:
         observe_previous_command: bool = False,
         observe_platform_acceleration: bool = False,
         observation_history: int = 1,
+        command_frame: str = "world",
+        pad_frame_lead: float = 0.0,
     ) -> TaskConfig:
         """The MDP constants the policy must have been trained with.
 
-        What the observation holds beyond eq. 2 is the policy's choice, not the lab's: pass
-        ``**contract.observation_options()`` of its policy file (see :func:`load_lab_policy`).
+        What the observation holds beyond eq. 2, and the frame its commands are read in, are the policy's choice, not
+        the lab's: pass ``**contract.interface_options()`` of its policy file (see :func:`load_lab_policy`).
         """
         return TaskConfig(
             num_drones=self.num_drones,
@@ -233,6 +235,8 @@ class LabConfig:
             observe_previous_command=observe_previous_command,
             observe_platform_acceleration=observe_platform_acceleration,
             observation_history=observation_history,
+            command_frame=command_frame,  # type: ignore[arg-type]  # TaskConfig checks it
+            pad_frame_lead=pad_frame_lead,
         )
 
     def with_drones(self, num_drones: int, geometry: PlateGeometry | None = None, body: str = "plate") -> LabConfig:
@@ -288,7 +292,7 @@ def load_lab_policy(path: str | Path, lab: LabConfig) -> MLPPolicy:
             f"{lab.num_drones} drones, or a shared policy (any number of drones, e.g. "
             "data/policies/shared-quick-local.safetensors)."
         )
-    task = lab.task_config(**contract.observation_options())
+    task = lab.task_config(**contract.interface_options())
     return load_policy(path, task, shared=contract.is_shared)
 
 

@@ -91,7 +91,7 @@ class Mission(LandingControl):
         self.lab, self.source, self.link, self.clock, self.log = lab, source, link, clock, log
         self.hooks = list(hooks)
         contract = getattr(policy, "contract", None)
-        self.task = lab.task_config(**(contract.observation_options() if contract is not None else {}))
+        self.task = lab.task_config(**(contract.interface_options() if contract is not None else {}))
         sf = lab.safety_filter
         self.runner = PolicyRunner(policy, self.task, lab.limits.max_speed, sf.filter_config() if sf.enabled else None)
         self.estimator = SwarmEstimator(lab, estimator, landed_height=self.task.landed_height)
@@ -397,7 +397,7 @@ class Mission(LandingControl):
             self.event("tracker_lag", message)
             self.logged_latency = latency
         try:
-            out.action, velocity = self.runner.act(out.obs, est.goal)
+            out.action, velocity = self.runner.act(out.obs, est.goal, self.runner.carried_pad_velocity(est))
             out.unfiltered = velocity
             out.velocity = velocity if self.runner.safety_filter is None else self._filter(est, velocity)
             if not out.valid:

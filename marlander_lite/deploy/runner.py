@@ -102,6 +102,10 @@ class PolicyRunner:
         """The pads' acceleration a policy with ``TaskConfig.observe_platform_acceleration`` reads, estimated from the
         estimates' pad velocities as the simulators estimate it from observed ones; None for other policies."""
         self._acceleration_at: tuple[float, np.ndarray] | None = None
+        self.carried_acceleration = PadAcceleration() if task_config.pad_frame_lead > 0 else None
+        """The pads' acceleration that leads the pad velocity a pad-frame command carries
+        (``TaskConfig.pad_frame_lead``), estimated as the simulators estimate it; None without a lead."""
+        self._carried_at: tuple[float, np.ndarray] | None = None
         self.history = ObservationHistory(
             task_config.observation_history, (task_config.num_drones,), task_config.frame_per_drone
         )
@@ -195,6 +199,19 @@ class PolicyRunner:
             self._acceleration_at = (est.t, self.observed_acceleration.update(est.pad_vel, est.t))
         return self._acceleration_at[1]
 
+    def carried_pad_velocity(self, est: SwarmEstimate) -> np.ndarray:
+        """The pad velocity a pad-frame command carries ``(N, 3)`` m/s (pass it to :meth:`act`): ``est.pad_vel``, led
+        by ``TaskConfig.pad_frame_lead`` times the pads' acceleration estimated from their velocities, updated once per
+        estimate time ``est.t``. Raises :class:`InvalidAction` on a pad velocity that is not finite: the loop hovers."""
+        if self.carried_acceleration is None:
+            return est.pad_vel
+        if self._carried_at is None or self._carried_at[0] != est.t:
+            try:
+                self._carried_at = (est.t, self.carried_acceleration.update(est.pad_vel, est.t))
+            except ValueError as error:
+                raise InvalidAction(str(error)) from None
+        return est.pad_vel + self.task.pad_frame_lead * self._carried_at[1]
+
     def policy_input(self, obs: np.ndarray, goals: np.ndarray | None = None) -> np.ndarray:
         """What the network reads: ``(1, 13 N)`` for a centralised policy, ``(N, 13 + 7 k)`` for a shared one.
 
@@ -212,12 +229,18 @@ class PolicyRunner:
         goals = np.asarray(goals, dtype=np.float64)
         return shared_observations(obs, goals - goals.mean(axis=0), int(self.neighbours), self.radius)  # type: ignore[arg-type]
 
-    def act(self, obs: np.ndarray, goals: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def act(
+        self, obs: np.ndarray, goals: np.ndarray | None = None, pad_vel: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """``(action (3N,) in [-1, 1], clamped velocity (N, 3) m/s)``; raises :class:`InvalidAction`.
 
-        ``goals`` ``(N, 3)`` is needed by a shared policy (see :meth:`policy_input`). Whatever the policy, the
+        ``goals`` ``(N, 3)`` is needed by a shared policy (see :meth:`policy_input`), and each pad's estimated
+        velocity ``pad_vel`` ``(N, 3)`` m/s by a policy whose commands are relative to its pad
+        (``TaskConfig.command_frame`` ``"pad"``; the velocity then carries the pad's). Whatever the policy, the
         action is checked the same way: ``3 N`` numbers, finite, within [-1, 1].
         """
+        if self.task.command_frame == "pad" and pad_vel is None:
+            raise ValueError("This policy commands velocities relative to its pad: pass the pads' velocities, pad_vel.")
         x = self.policy_input(obs, goals)
         try:
             action = np.asarray(self.policy.act(x), dtype=float).reshape(-1)  # one call: the whole swarm at once
@@ -228,7 +251,11 @@ class PolicyRunner:
             raise InvalidAction(f"the policy returned {action.size} numbers; {n3} expected")
         if not np.isfinite(action).all() or np.abs(action).max() > 1.0 + 1e-6:
             raise InvalidAction(f"the action {np.round(action, 3).tolist()} is not finite and within [-1, 1]")
-        velocity = task.action_to_velocity(action, self.task.num_drones, self.task.max_speed)[0]
+        pad_vel = np.zeros((self.task.num_drones, 3)) if pad_vel is None else pad_vel
+        try:
+            velocity = task.command_velocity(action, self.task, np.asarray(pad_vel, dtype=float)[None])[0]
+        except ValueError as error:  # a pad velocity that is not finite: no command can be formed, so hover
+            raise InvalidAction(str(error)) from None
         return action, clamp_speed(velocity, self.max_speed)
 
     def filter_velocity(

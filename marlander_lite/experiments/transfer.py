@@ -192,13 +192,23 @@ SHARED_SWARM_SIZE = 2
 
 
 def build_episodes(
-    policy: MLPPolicy, column: Column, row: Row, sensing: str, num_drones: int | None = None
+    policy: MLPPolicy,
+    column: Column,
+    row: Row,
+    sensing: str,
+    num_drones: int | None = None,
+    command_frame: str | None = None,
+    pad_frame_lead: float | None = None,
 ) -> LandingEpisodes:
     """One swarm of ``column``'s simulator on ``row``'s platform, with the policy's task and no training aid.
 
     A shared policy flies ``num_drones`` drones from the paper's starts (its training's start separation, an aid for
     crowded swarms, is not kept); its other task fields (the pairing of starts with pads, say) stay as trained."""
     task_fields = {**policy.contract.task, **training_aids.TRAINING_AIDS_OFF}
+    if command_frame is not None:  # flown in another frame than trained (TransferConfig.command_frame)
+        task_fields["command_frame"] = command_frame
+    if pad_frame_lead is not None:
+        task_fields["pad_frame_lead"] = pad_frame_lead
     if policy.contract.is_shared:
         task_fields.pop("spawn_separation", None)
     options = dict(
@@ -223,17 +233,21 @@ def fly_cell(
     sensing: str,
     safety_filter: dict[str, float] | None = None,
     num_drones: int | None = None,
+    command_frame: str | None = None,
+    pad_frame_lead: float | None = None,
 ) -> CellResult:
     """Fly ``episodes`` episodes of one cell (runs in a worker process). ``safety_filter``: None, or the settings
     (changes to :class:`SafetyFilterConfig`'s defaults, ``{}`` for none) of the deployment's safety filter
     (:mod:`marlander_lite.swarm.safety_filter`), which then changes every command before it is flown. ``column``
     is a column's name or a :class:`Column` (a simulator setting none of the named columns is). ``num_drones``:
-    the swarm size a shared policy flies (a centralised one flies its own)."""
+    the swarm size a shared policy flies (a centralised one flies its own). ``command_frame``: None (the policy's
+    own) or the frame its commands are flown in (``TaskConfig.command_frame``), ``pad_frame_lead`` None or its lead (s).
+    """
     started = time.perf_counter()
     policy = load_policy(policy_path)
     column = column if isinstance(column, Column) else find_column(column)
     row = find_row(row_name)
-    world = build_episodes(policy, column, row, sensing, num_drones)
+    world = build_episodes(policy, column, row, sensing, num_drones, command_frame, pad_frame_lead)
     cfg = world.task
     lag = tracker_lag(safety_filter, world.task)
     act = cell_actor(policy, world, safety_filter, lag)
@@ -254,7 +268,7 @@ def fly_cell(
             approached = np.zeros(cfg.num_drones, dtype=bool)
             while True:
                 action = act(obs)
-                command = task.action_to_velocity(action, cfg.num_drones, cfg.max_speed)[0]
+                command = task.command_velocity(action, cfg, world.sim.state().pad_vel)[0]
                 outcome = world.step(action)
                 s = world.sim.state()
                 flying = ~outcome.landed[0] & ~touched
@@ -350,6 +364,7 @@ def cell_actor(
         observes_pad_velocity=task_config.observe_platform_velocity,
         pads_move=world.sim.platform.is_moving,
         tracker_lag=lag,
+        command_frame=task_config.command_frame,
     )
 
 
@@ -389,6 +404,13 @@ class TransferConfig:
     :class:`SafetyFilterConfig`'s defaults (``{}``: none)."""
     num_drones: int | None = None
     """Swarm size a shared policy flies (None: 2, the paper's); a centralised policy flies its own, no other."""
+    command_frame: str | None = None
+    """None: the policy's commands are read in the frame it was trained with. ``"world"`` or ``"pad"``: in that frame
+    (``TaskConfig.command_frame``); ``"pad"`` adds each pad's velocity to its drone's command, so that a policy
+    trained on static pads can follow a moving one."""
+    pad_frame_lead: float | None = None
+    """None: the policy's own ``TaskConfig.pad_frame_lead``. A number of seconds: the lead on the pads' acceleration
+    of a pad-frame command, flown instead."""
 
     def __post_init__(self) -> None:
         if isinstance(self.episodes, bool) or not isinstance(self.episodes, int) or self.episodes < 1:
@@ -407,6 +429,12 @@ class TransferConfig:
             find_row(name)
         if self.safety_filter is not None:
             SafetyFilterConfig.from_dict(self.safety_filter)  # unknown or invalid settings fail before any flight
+        if self.pad_frame_lead is not None and not 0.0 <= self.pad_frame_lead <= 2.0:
+            raise ValueError(f"--pad-frame-lead must be from 0 to 2 s, got {self.pad_frame_lead!r}.")
+        if self.command_frame is not None and self.command_frame not in task.COMMAND_FRAMES:
+            raise ValueError(
+                f"--command-frame must be one of {', '.join(task.COMMAND_FRAMES)}, got {self.command_frame!r}."
+            )
         n = self.num_drones
         if n is not None and (isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= 64):
             raise ValueError(f"--num-drones must be an integer from 1 to 64, got {n!r}.")
@@ -430,7 +458,18 @@ def transfer_matrix(config: TransferConfig) -> list[CellResult]:
     n = config.swarm_size()  # fails before any worker starts
     cells = [(c, r) for r in config.rows for c in config.columns]
     args = [
-        (str(config.policy), c, r, config.episodes, config.seed, config.sensing, config.safety_filter, n)
+        (
+            str(config.policy),
+            c,
+            r,
+            config.episodes,
+            config.seed,
+            config.sensing,
+            config.safety_filter,
+            n,
+            config.command_frame,
+            config.pad_frame_lead,
+        )
         for c, r in cells
     ]
     if config.workers == 1:
@@ -501,6 +540,13 @@ def write_results(config: TransferConfig, results: list[CellResult], out: Path, 
     swarm = "" if n is None else f"a shared policy flying {n} drones, "
     if load_policy(config.policy).contract.task.get("pad_assignment", "fixed") == "shortest":  # as it was trained
         swarm += "starts paired with the pads by the shortest pairing, "
+    trained = load_policy(config.policy).contract.interface_options()
+    if config.command_frame not in (None, trained["command_frame"]):
+        swarm += (
+            f"commands flown in the {config.command_frame} frame (trained in the {trained['command_frame']} frame), "
+        )
+    if config.pad_frame_lead not in (None, trained["pad_frame_lead"]):
+        swarm += f"a pad lead of {config.pad_frame_lead:g} s (trained with {trained['pad_frame_lead']:g} s), "
     md_path.write_text(
         f"Transfer matrix of `{config.policy}` ({swarm}{config.episodes} episodes a cell, seed {config.seed}, "
         f"sensing {config.sensing}{_filter_words(config.safety_filter)}): success % [95 % Wilson] / mean landing "

@@ -7,6 +7,7 @@ Examples::
     marlander transfer P --columns "point mass,PyBullet firmware"
     marlander transfer P --safety-filter cone_radius=0.04,reaction_time=0.35  # as deployed, moving pads
     marlander transfer data/policies/shared-quick-paired.safetensors --num-drones 8  # a shared policy, 8 drones
+    marlander transfer P --rows "arc 0.2-0.5 m/s" --command-frame pad  # a static policy carried by the pad
 
 Writes ``transfer.csv``, ``transfer.json`` and ``transfer.md`` to ``--out`` (default
 ``runs/transfer-<policy name>``) and prints the table. Existing files are kept unless ``--force``.
@@ -31,6 +32,7 @@ from marlander_lite.experiments.transfer import (
     write_results,
 )
 from marlander_lite.swarm.safety_filter import parse_settings
+from marlander_lite.task import COMMAND_FRAMES
 
 OUTPUT_NAMES = ("transfer.csv", "transfer.json", "transfer.md")
 
@@ -76,6 +78,21 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="fly every command through the safety filter `marlander deploy` puts after the policy, with its "
         "defaults or these changes to them (e.g. cone_radius=0.04)",
     )
+    p.add_argument(
+        "--command-frame",
+        choices=COMMAND_FRAMES,
+        default=None,
+        help="fly the commands in this frame instead of the policy's own: 'pad' adds each pad's velocity to its "
+        "drone's command (TaskConfig.command_frame)",
+    )
+    p.add_argument(
+        "--pad-frame-lead",
+        type=float,
+        default=None,
+        metavar="S",
+        help="with the pad frame, lead the pad velocity a command carries by S seconds of the pad's acceleration "
+        "(TaskConfig.pad_frame_lead; default: the policy's own)",
+    )
     p.add_argument("--out", type=Path, help="results folder (default runs/transfer-<policy name>)")
     p.add_argument("--force", action="store_true", help="overwrite transfer.* files already in --out")
     p.set_defaults(func=run)
@@ -102,6 +119,8 @@ def run(args: argparse.Namespace) -> int:
         workers=args.workers,
         safety_filter=args.safety_filter,
         num_drones=args.num_drones,
+        command_frame=args.command_frame,
+        pad_frame_lead=args.pad_frame_lead,
     )
     out = args.out or Path("runs") / f"transfer-{args.policy.stem}"
     existing = [out / name for name in OUTPUT_NAMES if (out / name).exists()]

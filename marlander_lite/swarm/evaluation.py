@@ -192,6 +192,7 @@ def actor_factory(
             policy_dt=task.dt,
             observes_pad_velocity=task.observe_platform_velocity,
             pads_move=platform.is_moving,
+            command_frame=task.command_frame,
         )
 
     if controller == "shared":

@@ -500,6 +500,7 @@ def with_safety_filter(
     observes_pad_velocity: bool = False,
     pads_move: bool = False,
     tracker_lag: TrackerLag | None = None,
+    command_frame: str = "world",
 ) -> BatchAct:
     """Wrap a batch actor (centralised observations ``(E, 13 N)`` -> actions ``(E, 3 N)`` in [-1, 1]) with
     :func:`filter_commands`: actions are read as commands of ``max_speed`` m/s per unit (eq. 3).
@@ -518,8 +519,17 @@ def with_safety_filter(
     With ``config.low_velocity_step`` > 0 the velocity-step limit compares commands with each drone's velocity in the
     world frame: eq. 2's ``v`` plus the pad velocity in the observations (``observes_pad_velocity``), or ``v`` itself
     on pads at rest. On pads that move (``pads_move``) it therefore needs ``observes_pad_velocity``.
+    With ``command_frame`` ``"pad"`` (``TaskConfig.command_frame``) an action is a velocity relative to the pad: the
+    filter works on the world command, the action plus the observed pad velocity (on moving pads that needs
+    ``observes_pad_velocity``), and hands back the filtered command relative to the pad again.
     """
     config = config or SafetyFilterConfig()
+    if command_frame == "pad" and pads_move and not observes_pad_velocity:
+        raise ValueError(
+            "A pad-frame policy (command_frame='pad') on moving pads needs each pad's velocity in the observations "
+            "for the safety filter to see the world command (a policy trained with observe_platform_velocity); fly "
+            "it without the filter, or on static pads."
+        )
     if config.low_velocity_step > 0 and pads_move and not observes_pad_velocity:
         raise ValueError(
             "low_velocity_step > 0 on moving pads needs each pad's velocity in the observations (a policy trained "
@@ -559,9 +569,12 @@ def with_safety_filter(
         ahead = predict_observations(per_drone, latency).reshape(obs.shape)
         command = np.asarray(act(ahead), dtype=float).reshape(len(obs), num_drones, 3)
         accel = None if lead is None else lead.update(per_drone[..., PLATFORM_VELOCITY], next(calls) * policy_dt)
-        actions, _ = filter_actions(per_drone, command, offsets, max_speed, config, accel, pad_vel, latency)
+        frame_offset = pad_vel if command_frame == "pad" else None
+        actions, _ = filter_actions(
+            per_drone, command, offsets, max_speed, config, accel, pad_vel, latency, command_offset=frame_offset
+        )
         if lag is not None:
-            lag.commanded(actions * max_speed)
+            lag.commanded(actions * max_speed + (0.0 if frame_offset is None else frame_offset))
         return actions.reshape(len(obs), 3 * num_drones)
 
     return filtered
@@ -576,6 +589,7 @@ def filter_actions(
     pad_acceleration: np.ndarray | None = None,
     pad_velocity: np.ndarray | None = None,
     latency: float | np.ndarray | None = None,
+    command_offset: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`filter_commands` on eq. 3 actions, with positions and velocities read from eq. 2 observations.
 
@@ -592,6 +606,8 @@ def filter_actions(
             velocity-step limit (``config.low_velocity_step``); None: the pads are taken to be at rest.
         latency: the latency compensation ``L`` (s) the guards predict ``p`` by: a number, or ``(..., 1, 1)`` (one
             per env, as ``config.identified_lag_share`` identifies it); None: ``config.latency_compensation``.
+        command_offset: ``(..., N, 3)`` m/s added to ``actions * max_speed`` to make the world command, and taken off
+            the filtered one: the pad velocities of a pad-frame policy (``TaskConfig.command_frame``); None: none.
 
     Returns:
         ``(filtered, correction)``: actions ``(..., N, 3)`` in [-1, 1], and how far the filter moved each drone's
@@ -599,6 +615,8 @@ def filter_actions(
     """
     rel_goal, vel = obs[..., EQ2_POSITION], obs[..., EQ2_VELOCITY]
     command = np.clip(actions, -1.0, 1.0) * max_speed
+    if command_offset is not None:
+        command = command + command_offset
     # Eq. 2's v is relative to the pad; the velocity-step limit compares commands (world frame) with world velocities.
     # Only the differences of velocities keep drones apart, so the other rules read the same either way; without the
     # limit the velocities stay as observed, so that filtered flights without it are what they were before it.
@@ -615,4 +633,7 @@ def filter_actions(
         pad_acceleration=pad_acceleration,
         pad_velocity=pad_velocity if world_frame else None,
     )
-    return np.clip(u / max_speed, -1.0, 1.0), np.linalg.norm(u - command, axis=-1)
+    correction = np.linalg.norm(u - command, axis=-1)
+    if command_offset is not None:
+        u = u - command_offset
+    return np.clip(u / max_speed, -1.0, 1.0), correction

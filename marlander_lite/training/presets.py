@@ -369,6 +369,23 @@ the twelve-column transfer matrix, Wilson lower bounds 92.3 % and above, at 0.70
 recipe, fine-tuned with smooth commands) lands 0-2 % alone in PyFlyt, and an 8 M-step fine-tune of it on this family
 landed nobody (touchdowns at 0.6-1 m/s; docs/transfer.md)."""
 
+PAD_FRAME_LEAD = 0.5
+"""``TaskConfig.pad_frame_lead`` of ``moving-slow-trackers`` (s). Flown with 0.3 s, its first version (trained
+without a lead) landed 92 / 86 % on PyFlyt 0.22's moving arc / line and 98 / 100 % through the firmware tracker; with
+0.6 s 100 / 98 % and 94 / 92 % (50 episodes a cell; docs/transfer.md)."""
+
+_MOVING_SLOW_TRACKERS = _QUICK_SLOW_TRACKERS.replace(
+    task={**_QUICK_SLOW_TRACKERS.task, "command_frame": "pad", "pad_frame_lead": PAD_FRAME_LEAD},
+    total_steps=6_000_000,
+    **_MOVING_PLATFORMS,
+)
+"""``moving-slow-trackers``: a ``quick-cpu-slow-trackers`` run (``--init-from``) fine-tuned 6 M steps on moving pads
+(UR10 arcs at 0-0.6 m/s, plates from the floor to 1 m) with commands relative to the pad
+(``TaskConfig.command_frame`` ``"pad"``, led by :data:`PAD_FRAME_LEAD`): the loop carries each pad's velocity, so the
+policy keeps the static task it learnt and learns only what a pad's turns ask of a lagging tracker. Trained from
+scratch on moving pads in this frame (20 M steps, arcs or arcs and lines) it landed less and less precisely than the
+static policy flown in it, untrained (docs/transfer.md, "Commands relative to the pad")."""
+
 PRESETS: dict[str, TrainConfig] = {
     "quick-cpu": _QUICK,
     "quick-cpu-smooth": _QUICK_SMOOTH,
@@ -392,6 +409,7 @@ PRESETS: dict[str, TrainConfig] = {
         **_MOVING_PLATFORMS,
         **SMOOTH_COMMANDS,
     ),
+    "moving-slow-trackers": _MOVING_SLOW_TRACKERS,
     "moving-crazyflie-finetune": _FINETUNE.replace(
         task={**_FINETUNE.task, "observe_platform_velocity": True}, **_MOVING_PLATFORMS
     ),
@@ -399,7 +417,7 @@ PRESETS: dict[str, TrainConfig] = {
 }
 """Named presets; see :func:`describe_presets`."""
 
-FINETUNE_PRESETS = ("crazyflie-finetune", "moving-crazyflie-finetune")
+FINETUNE_PRESETS = ("crazyflie-finetune", "moving-crazyflie-finetune", "moving-slow-trackers")
 """Presets that continue a trained run (``--init-from RUN``) rather than start from scratch."""
 
 PRESET_NOTES: dict[str, str] = {
@@ -416,6 +434,8 @@ PRESET_NOTES: dict[str, str] = {
     "crazyflie-finetune": "continue a quick-cpu/paper run in the PyBullet Crazyflie swarm, 3 M steps (~30 min).",
     "moving": "beyond the paper: observes the platform velocity; UR10 arcs at 0-0.6 m/s, floor to 1 m, smooth "
     "commands, 16 M steps.",
+    "moving-slow-trackers": "beyond the paper: continue a quick-cpu-slow-trackers run (--init-from) 6 M steps on "
+    "moving pads with commands relative to the pad, which the loop carries (led by 0.3 s of its acceleration).",
     "moving-crazyflie-finetune": "continue a 'moving' run in the PyBullet Crazyflie swarm, 3 M steps (~30 min).",
     "single-agent": "one drone (MorphoLander-style: applied per drone with APF repulsion), smooth commands, 8 M steps.",
 }

@@ -1,0 +1,265 @@
+"""Commands relative to the pad (``TaskConfig.command_frame`` ``"pad"``): eq. 3 plus the pad velocity, by hand, in the
+simulators, the transfer matrix, the safety filter and the deployment loop."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from marlander_lite import task
+from marlander_lite.cli import main
+from marlander_lite.deploy.estimation import SwarmEstimate
+from marlander_lite.deploy.runner import InvalidAction, PolicyRunner
+from marlander_lite.episodes import LandingEpisodes
+from marlander_lite.experiments import transfer
+from marlander_lite.platforms import PlatformConfig
+from marlander_lite.pointmass import PointMassSwarm
+from marlander_lite.policy_file import PolicyContract, PolicyFileError
+from marlander_lite.swarm.safety_filter import SafetyFilterConfig, filter_actions, with_safety_filter
+from marlander_lite.task import TaskConfig
+from marlander_lite.training.presets import FINETUNE_PRESETS, get_preset
+
+POLICY = "data/policies/quick-cpu-slow-trackers-20m.safetensors"
+
+
+def test_the_pad_frame_adds_the_pad_velocity_and_clips_each_axis_by_hand():
+    """``u = v_pad + a v_max`` per axis within ``+-v_max``; the world frame is eq. 3 itself."""
+    action = np.array([[0.5, -1.0, 0.0], [0.9, 0.0, 2.0]])  # 2 drones; 2.0 is clipped to 1 first, as eq. 3 does
+    pad_vel = np.array([[[0.4, 0.3, 0.0], [0.5, -0.2, 0.1]]])
+    world = task.command_velocity(action, TaskConfig(num_drones=2), pad_vel)
+    np.testing.assert_allclose(world[0], [[1.5, -3.0, 0.0], [2.7, 0.0, 3.0]])
+    pad = task.command_velocity(action, TaskConfig(num_drones=2, command_frame="pad"), pad_vel)
+    np.testing.assert_allclose(pad[0], [[1.9, -2.7, 0.0], [3.0, -0.2, 3.0]])  # 2.7 + 0.5 and 3 + 0.1 cut to 3 m/s
+
+
+def test_an_unknown_frame_or_a_pad_velocity_that_is_not_finite_is_refused():
+    with pytest.raises(ValueError, match="command_frame must be one of world, pad"):
+        TaskConfig(command_frame="body")
+    cfg = TaskConfig(num_drones=1, command_frame="pad")
+    with pytest.raises(ValueError, match="pad velocity is not finite"):
+        task.command_velocity(np.zeros(3), cfg, np.array([[[np.nan, 0.0, 0.0]]]))
+    with pytest.raises(ValueError, match="--command-frame must be one of world, pad"):
+        transfer.TransferConfig(POLICY, command_frame="body")
+
+
+def test_a_drone_that_commands_nothing_in_the_pad_frame_follows_its_pad():
+    """On the point mass, with the pad circling at 0.4 m/s: action 0 in the world frame hovers (the drone's velocity
+    relative to the pad stays near the pad's 0.4 m/s); in the pad frame the tracker takes the drone to the pad's
+    velocity within a few of its time constants."""
+    relative = {}
+    for frame in ("world", "pad"):
+        cfg = TaskConfig(num_drones=2, command_frame=frame)
+        sim = PointMassSwarm(cfg, PlatformConfig(kind="moving-arc", speed=0.4), num_envs=3)
+        episodes = LandingEpisodes(sim, seed=1)
+        episodes.reset()
+        for _ in range(12):  # 0.5 s
+            episodes.step(np.zeros((3, 6)))
+        s = sim.state()
+        relative[frame] = np.abs(s.vel - s.pad_vel)[..., :2].max()
+        np.testing.assert_allclose(np.linalg.norm(s.pad_vel[..., :2], axis=-1), 0.4)
+    assert relative["world"] > 0.3
+    assert relative["pad"] < 0.1
+
+
+def test_the_safety_filter_works_on_the_world_command_of_a_pad_frame_policy():
+    """Filtering ``a`` with the pad velocity as offset is filtering the world command ``a v_max + v_pad`` and taking
+    ``v_pad`` off again: nothing changes when no rule binds; a head-on pair is moved as in the world frame."""
+    config = SafetyFilterConfig(gain=6.0, min_distance=0.19, reaction_time=0.2)
+    obs = np.zeros((1, 2, 16))
+    obs[0, :, 0:3] = [[-0.075, 0.0, 1.0], [0.075, 0.0, 1.0]]  # 0.4 m apart over pads 0.25 m apart
+    obs[0, :, 3:7] = [0.0, 0.0, 0.0, 1.0]
+    offsets = np.array([[-0.125, 0.0, 0.0], [0.125, 0.0, 0.0]])
+    pad_vel = np.full((1, 2, 3), [0.3, 0.0, 0.0])
+    apart = np.array([[[-0.1, 0.0, 0.0], [0.1, 0.0, 0.0]]])  # separating: no rule binds
+    kept, correction = filter_actions(obs, apart, offsets, 3.0, config, command_offset=pad_vel)
+    np.testing.assert_allclose(kept, apart, atol=1e-12)
+    assert np.abs(correction).max() < 1e-12
+    head_on = np.array([[[0.3, 0.0, 0.0], [-0.3, 0.0, 0.0]]])
+    pad_frame, _ = filter_actions(obs, head_on, offsets, 3.0, config, command_offset=pad_vel)
+    world, _ = filter_actions(obs, head_on + pad_vel / 3.0, offsets, 3.0, config)
+    np.testing.assert_allclose(pad_frame * 3.0 + pad_vel, world * 3.0, atol=1e-12)
+    assert not np.allclose(pad_frame, head_on)  # the rule did bind
+    with pytest.raises(ValueError, match=r"pad-frame policy .* needs each pad's velocity"):
+        with_safety_filter(lambda o: o, 2, offsets, 3.0, config, policy_dt=1 / 24, pads_move=True, command_frame="pad")
+
+
+class Still:
+    """A centralised two-drone policy that commands nothing."""
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        return np.zeros(6)
+
+
+def test_the_deployment_loop_carries_the_estimated_pad_velocity():
+    pad_vel = np.array([[0.3, -0.1, 0.0], [0.3, -0.1, 0.0]])
+    est = SwarmEstimate(
+        t=0.0,
+        pos=np.array([[-0.2, 0.0, 1.0], [0.2, 0.0, 1.0]]),
+        quat=np.tile([0.0, 0.0, 0.0, 1.0], (2, 1)),
+        vel=np.zeros((2, 3)),
+        ang_vel=np.zeros((2, 3)),
+        pad_pos=np.array([[-0.125, 0.0, 0.0], [0.125, 0.0, 0.0]]),
+        pad_vel=pad_vel,
+        goal=np.array([[-0.125, 0.0, 0.0125], [0.125, 0.0, 0.0125]]),
+        drone_age=np.zeros(2),
+        pad_age=np.zeros(2),
+        drone_invalid=np.zeros(2, dtype=bool),
+        pad_invalid=np.zeros(2, dtype=bool),
+    )
+    pad_runner = PolicyRunner(Still(), TaskConfig(num_drones=2, command_frame="pad"), max_speed=1.0)
+    _, velocity = pad_runner.act(pad_runner.observe(est), est.goal, est.pad_vel)
+    np.testing.assert_allclose(velocity, pad_vel)
+    world_runner = PolicyRunner(Still(), TaskConfig(num_drones=2), max_speed=1.0)
+    np.testing.assert_array_equal(world_runner.act(world_runner.observe(est), est.goal, est.pad_vel)[1], 0.0)
+    with pytest.raises(ValueError, match="relative to its pad: pass the pads' velocities"):
+        pad_runner.act(pad_runner.observe(est), est.goal)
+    with pytest.raises(InvalidAction, match="not finite"):  # the mission hovers on InvalidAction
+        pad_runner.act(pad_runner.observe(est), est.goal, np.full((2, 3), np.nan))
+
+
+def test_a_policy_file_names_its_command_frame():
+    fields = {"num_drones": 2, "max_speed": 3.0, "policy_hz": 24.0, "activation": "relu", "hidden_sizes": (8,)}
+    fields["normalize_observations"] = False
+    old = PolicyContract(**fields, task={})
+    assert old.interface_options()["command_frame"] == "world"  # files written before the frame: the paper's
+    assert PolicyContract(**fields, task={"command_frame": "pad"}).interface_options()["command_frame"] == "pad"
+    with pytest.raises(PolicyFileError, match="command_frame must be one of world, pad, got 'body'"):
+        PolicyContract(**fields, task={"command_frame": "body"}).interface_options()
+    led = PolicyContract(**fields, task={"command_frame": "pad", "pad_frame_lead": 0.3}).interface_options()
+    assert led["pad_frame_lead"] == 0.3 and old.interface_options()["pad_frame_lead"] == 0.0
+    with pytest.raises(PolicyFileError, match="pad_frame_lead must be a number from 0 to 2"):
+        PolicyContract(**fields, task={"command_frame": "pad", "pad_frame_lead": -1}).interface_options()
+
+
+def test_the_preset_fine_tunes_the_quick_recipe_on_moving_pads_in_the_pad_frame():
+    preset, quick = get_preset("moving-slow-trackers"), get_preset("quick-cpu-slow-trackers")
+    assert "moving-slow-trackers" in FINETUNE_PRESETS  # marlander train refuses it without --init-from
+    assert preset.task == {**quick.task, "command_frame": "pad", "pad_frame_lead": 0.5}
+    assert preset.platform == "moving-arc" and tuple(preset.platform_speed) == (0.0, 0.6)
+    assert preset.total_steps == 6_000_000
+    moving = {"task", "platform", "platform_speed", "total_steps"}  # plates from the floor to 1 m, as before
+    assert {f for f in quick.__dataclass_fields__ if getattr(quick, f) != getattr(preset, f)} == moving
+
+
+def test_the_matrix_flies_a_static_policy_in_the_pad_frame(tmp_path):
+    """``--command-frame pad`` carries a policy trained on static pads along with a moving one: on the point-mass arc
+    it lands where the world frame (its own) leaves it behind the pad."""
+    cells = {}
+    for frame in (None, "pad"):
+        config = transfer.TransferConfig(
+            POLICY, episodes=10, columns=("point mass",), rows=("arc 0.2-0.5 m/s",), workers=1, command_frame=frame
+        )
+        (cells[frame],) = transfer.transfer_matrix(config)
+    assert cells["pad"].successes >= 9, cells["pad"]
+    assert cells[None].successes <= 5, cells[None]
+    out = tmp_path / "t"
+    args = ["transfer", POLICY, "--command-frame", "pad", "--episodes", "1", "--rows", "floor", "--columns"]
+    assert main([*args, "point mass", "--workers", "1", "--out", str(out)]) == 0
+    assert "commands flown in the pad frame (trained in the world frame)" in (out / "transfer.md").read_text()
+    assert json.loads((out / "transfer.json").read_text())["config"]["command_frame"] == "pad"
+
+
+def test_on_pads_at_rest_the_pad_frame_is_the_world_frame():
+    """The same episodes, flown in either frame on the floor pad, give the same cell to the last digit."""
+    cells = [
+        dataclasses.replace(transfer.fly_cell(POLICY, "point mass", "floor", 4, 0, "vicon", command_frame=f), wall_s=0)
+        for f in ("world", "pad")
+    ]
+    assert cells[0] == cells[1]
+
+
+def test_the_lead_carries_the_pads_acceleration_once_the_estimate_has_settled():
+    """With ``pad_frame_lead`` ``T`` and action 0 the command is ``v_pad + T a_pad``. The pad shuttles along its line
+    at 0.5 m/s, ramping at 1 m/s^2 for 0.5 s at each end; wherever its acceleration (differenced here from its true
+    velocities) has held for 8 commands, the estimate has closed all but 0.7^8 of the change, and the command is
+    within 3 cm/s of ``v_pad + T a_pad``. Without a lead the command is the pad's velocity exactly."""
+    lead, dt = 0.4, TaskConfig().dt
+    errors = {}
+    for t_lead in (0.0, lead):
+        cfg = TaskConfig(num_drones=2, command_frame="pad", pad_frame_lead=t_lead)
+        sim = PointMassSwarm(cfg, PlatformConfig(kind="moving-linear", speed=0.5), num_envs=2)
+        episodes = LandingEpisodes(sim, seed=3)
+        episodes.reset()
+        pad_vel, commands = [], []
+        for _ in range(150):
+            pad_vel.append(sim.state().pad_vel.copy())
+            episodes.step(np.zeros((2, 6)))
+            commands.append(episodes.previous_command.copy())
+        pad_vel, commands = np.array(pad_vel), np.array(commands)
+        accel = np.diff(pad_vel, axis=0, prepend=pad_vel[:1]) / dt
+        held = np.array([np.allclose(accel[k - 8 : k + 1], accel[k], atol=1e-9) for k in range(8, len(accel))])
+        k = np.arange(8, len(accel))[held]
+        assert np.linalg.norm(accel[k], axis=-1).max() == pytest.approx(1.0)  # some held stretches brake or ramp
+        errors[t_lead] = np.abs(commands[k] - (pad_vel[k] + t_lead * accel[k])).max()
+    assert errors[0.0] == 0.0
+    assert errors[lead] < 0.03
+    with pytest.raises(ValueError, match="pad_frame_lead must be from 0 to 2 s, and above 0 only with"):
+        TaskConfig(pad_frame_lead=0.3)
+    with pytest.raises(ValueError, match="pad_frame_lead must be from 0 to 2 s"):
+        TaskConfig(command_frame="pad", pad_frame_lead=2.5)
+
+
+def test_the_deployment_loop_leads_the_pad_velocity_once_per_estimate():
+    """The runner's lead is the simulators': ``T`` times :class:`PadAcceleration` of the estimates' pad velocities, one
+    update per estimate time; a pad velocity that is not finite makes the loop hover (InvalidAction)."""
+    from marlander_lite.swarm.pad_acceleration import PadAcceleration
+
+    cfg = TaskConfig(num_drones=2, command_frame="pad", pad_frame_lead=0.3)
+    runner, reference = PolicyRunner(Still(), cfg, max_speed=1.0), PadAcceleration()
+    base = SwarmEstimate(
+        t=0.0,
+        pos=np.array([[-0.2, 0.0, 1.0], [0.2, 0.0, 1.0]]),
+        quat=np.tile([0.0, 0.0, 0.0, 1.0], (2, 1)),
+        vel=np.zeros((2, 3)),
+        ang_vel=np.zeros((2, 3)),
+        pad_pos=np.zeros((2, 3)),
+        pad_vel=np.zeros((2, 3)),
+        goal=np.zeros((2, 3)),
+        drone_age=np.zeros(2),
+        pad_age=np.zeros(2),
+        drone_invalid=np.zeros(2, dtype=bool),
+        pad_invalid=np.zeros(2, dtype=bool),
+    )
+    for k in range(20):
+        est = dataclasses.replace(base, t=k * cfg.dt, pad_vel=np.tile([0.5 - k * cfg.dt, 0.0, 0.0], (2, 1)))
+        carried = runner.carried_pad_velocity(est)
+        np.testing.assert_allclose(carried, est.pad_vel + 0.3 * reference.update(est.pad_vel, est.t), atol=1e-12)
+        np.testing.assert_array_equal(runner.carried_pad_velocity(est), carried)  # the same estimate again
+        _, velocity = runner.act(runner.observe(est), est.goal, carried)
+        np.testing.assert_allclose(velocity, carried)
+    assert carried[0, 0] == pytest.approx(0.5 - 19 * cfg.dt - 0.3, abs=1e-3)  # braking at 1 m/s^2: led by 0.3 m/s
+    bad = dataclasses.replace(est, t=est.t + cfg.dt, pad_vel=np.full((2, 3), np.nan))
+    with pytest.raises(InvalidAction, match="NaN or infinite pad velocity"):
+        runner.carried_pad_velocity(bad)
+
+
+def test_the_lab_rehearsal_flies_the_shipped_pad_frame_policy_onto_a_shuttling_plate():
+    """`marlander deploy --sim`'s loop with `moving-slow-trackers` (the lab's moving-pad settings, the plate shuttling
+    at 0.4 m/s, the firmware tracker): the runner reads the policy's frame and lead from its file, carries the pads'
+    tracked velocity, and both drones land on their pads (seed 0 of the campaign in
+    benchmarks/results/rehearsal_moving_slow_trackers_line_2026-11-30.txt)."""
+    from marlander_lite.deploy.config import EXAMPLE_CONFIG, load_lab_config
+    from marlander_lite.deploy.mission import Mission
+    from marlander_lite.deploy.rehearsal import rehearse
+    from marlander_lite.swarm.safety_filter import parse_settings
+
+    lab = load_lab_config(EXAMPLE_CONFIG)
+    lab = lab.replace(
+        simulation=dataclasses.replace(lab.simulation, platform="moving-linear", platform_speed=0.4),
+        safety_filter=lab.safety_filter.with_settings(parse_settings("cone_radius=0.04,reaction_time=0.35")),
+        limits=dataclasses.replace(lab.limits, takeoff_height=1.4),
+    )
+    frames = []
+
+    def record(mission: Mission, t: float) -> None:
+        frames.append((mission.task.command_frame, mission.task.pad_frame_lead))
+
+    result = rehearse(
+        lab, "data/policies/moving-slow-trackers.safetensors", simulator="crazyflie", seed=0, hooks=[record]
+    )
+    assert set(frames) == {("pad", 0.5)}
+    assert result.mission.success and all(result.mission.on_pad), result.mission
+    assert result.safe
