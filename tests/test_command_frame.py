@@ -93,22 +93,27 @@ class Still:
         return np.zeros(6)
 
 
-def test_the_deployment_loop_carries_the_estimated_pad_velocity():
-    pad_vel = np.array([[0.3, -0.1, 0.0], [0.3, -0.1, 0.0]])
-    est = SwarmEstimate(
+def two_drones_over_their_pads(pad_vel: np.ndarray) -> SwarmEstimate:
+    """A fresh estimate: two level drones at rest 1 m over the example's pads, which move at ``pad_vel`` ``(2, 3)``."""
+    return SwarmEstimate(
         t=0.0,
         pos=np.array([[-0.2, 0.0, 1.0], [0.2, 0.0, 1.0]]),
         quat=np.tile([0.0, 0.0, 0.0, 1.0], (2, 1)),
         vel=np.zeros((2, 3)),
         ang_vel=np.zeros((2, 3)),
         pad_pos=np.array([[-0.125, 0.0, 0.0], [0.125, 0.0, 0.0]]),
-        pad_vel=pad_vel,
+        pad_vel=np.asarray(pad_vel, dtype=float),
         goal=np.array([[-0.125, 0.0, 0.0125], [0.125, 0.0, 0.0125]]),
         drone_age=np.zeros(2),
         pad_age=np.zeros(2),
         drone_invalid=np.zeros(2, dtype=bool),
         pad_invalid=np.zeros(2, dtype=bool),
     )
+
+
+def test_the_deployment_loop_carries_the_estimated_pad_velocity():
+    pad_vel = np.array([[0.3, -0.1, 0.0], [0.3, -0.1, 0.0]])
+    est = two_drones_over_their_pads(pad_vel)
     pad_runner = PolicyRunner(Still(), TaskConfig(num_drones=2, command_frame="pad"), max_speed=1.0)
     _, velocity = pad_runner.act(pad_runner.observe(est), est.goal, est.pad_vel)
     np.testing.assert_allclose(velocity, pad_vel)
@@ -209,20 +214,7 @@ def test_the_deployment_loop_leads_the_pad_velocity_once_per_estimate():
 
     cfg = TaskConfig(num_drones=2, command_frame="pad", pad_frame_lead=0.3)
     runner, reference = PolicyRunner(Still(), cfg, max_speed=1.0), PadAcceleration()
-    base = SwarmEstimate(
-        t=0.0,
-        pos=np.array([[-0.2, 0.0, 1.0], [0.2, 0.0, 1.0]]),
-        quat=np.tile([0.0, 0.0, 0.0, 1.0], (2, 1)),
-        vel=np.zeros((2, 3)),
-        ang_vel=np.zeros((2, 3)),
-        pad_pos=np.zeros((2, 3)),
-        pad_vel=np.zeros((2, 3)),
-        goal=np.zeros((2, 3)),
-        drone_age=np.zeros(2),
-        pad_age=np.zeros(2),
-        drone_invalid=np.zeros(2, dtype=bool),
-        pad_invalid=np.zeros(2, dtype=bool),
-    )
+    base = two_drones_over_their_pads(np.zeros((2, 3)))
     for k in range(20):
         est = dataclasses.replace(base, t=k * cfg.dt, pad_vel=np.tile([0.5 - k * cfg.dt, 0.0, 0.0], (2, 1)))
         carried = runner.carried_pad_velocity(est)
