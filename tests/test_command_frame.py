@@ -255,3 +255,17 @@ def test_the_lab_rehearsal_flies_the_shipped_pad_frame_policy_onto_a_shuttling_p
     assert set(frames) == {("pad", 0.5)}
     assert result.mission.success and all(result.mission.on_pad), result.mission
     assert result.safe
+
+
+def test_every_evaluation_flies_a_pad_frame_policy_in_its_frame():
+    """`marlander swarm evaluate --centralised` and `marlander reproduce` read the frame from the policy file with its
+    observation, as the transfer matrix and the deployment loop do: a pad-frame policy flown in the world frame would
+    fall behind a moving pad."""
+    from marlander_lite.experiments.controllers import ControllerSpec
+    from marlander_lite.swarm.evaluation import evaluate_cell
+
+    policy = "data/policies/moving-slow-trackers.safetensors"
+    assert ControllerSpec("marlander", policy_path=policy).interface_options()["command_frame"] == "pad"
+    arc = PlatformConfig(kind="moving-arc", speed=0.4)
+    row = evaluate_cell("centralised", 2, 20, policy_path=policy, num_envs=20, platform=arc)
+    assert row.summary.success_rate >= 0.9, row

@@ -207,13 +207,13 @@ class ControllerSpec:
     def __post_init__(self) -> None:
         check_controller_name(self.name)
 
-    def observation_options(self) -> dict[str, bool | int]:
-        """What this controller's policy file asks for in the observation beyond eq. 2 (``TaskConfig`` fields;
-        see ``PolicyContract.observation_options``); nothing for the baseline."""
+    def interface_options(self) -> dict[str, bool | int | str]:
+        """What this controller's policy file asks for in the observation beyond eq. 2, and the frame its commands are
+        read in (``TaskConfig`` fields; see ``PolicyContract.interface_options``); nothing for the baseline."""
         path = self.resolved_policy_path
         if path is None or not path.is_file():
             return {}
-        return read_contract(path).observation_options()
+        return read_contract(path).interface_options()
 
     @property
     def resolved_policy_path(self) -> Path | None:

@@ -182,10 +182,10 @@ class ProtocolConfig:
         """The task of every trial: the defaults with ``num_drones`` and the time limit.
 
         With ``controller_name``, the observation also carries the extras that controller's policy file asks for
-        (the platform velocity, the previous command, the platform acceleration: ``task.OBSERVATION_OPTIONS``).
-        The trials' starts do not depend on them.
+        (the platform velocity, the previous command, the platform acceleration: ``task.OBSERVATION_OPTIONS``), and
+        its commands are read in its frame (``TaskConfig.command_frame``). The trials' starts do not depend on them.
         """
-        observe = self.spec(controller_name).observation_options() if controller_name is not None else {}
+        observe = self.spec(controller_name).interface_options() if controller_name is not None else {}
         return TaskConfig(num_drones=self.num_drones, episode_seconds=self.time_limit_s, **observe)
 
     def sensing_config(self) -> SensingConfig:

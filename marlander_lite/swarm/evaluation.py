@@ -258,8 +258,8 @@ def evaluate_cell(
     platform = platform or PlatformConfig()
     # A PyBullet CrazyflieSwarm holds one world: its trials are flown one after another.
     num_envs = 1 if simulator == "crazyflie" else min(num_envs, trials)
-    if policy_path is not None:  # what the policy asks for in its input beyond eq. 2
-        task_changes = {**(task_changes or {}), **read_contract(policy_path).observation_options()}
+    if policy_path is not None:  # what the policy asks for in its input beyond eq. 2, and its command frame
+        task_changes = {**(task_changes or {}), **read_contract(policy_path).interface_options()}
     episodes = make_episodes(
         num_drones, num_envs, seed, simulator, platform, task_changes=task_changes, **(simulator_options or {})
     )

@@ -45,7 +45,7 @@ def touchdown_speeds(
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}.")
     # Under a limit of 1 mm/s every touchdown counts as a crash, and the simulator reports its speed at the contact.
-    changes = {"touchdown_speed_max": 1e-3, **read_contract(policy_path).observation_options()}
+    changes = {"touchdown_speed_max": 1e-3, **read_contract(policy_path).interface_options()}
     swarm = make_episodes(1, episodes, seed, params=PointMassParams(family=family), task_changes=changes)
     controller = "shared" if filter_settings is None else "shared-filter"
     act = actor_factory(
