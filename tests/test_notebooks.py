@@ -883,6 +883,21 @@ def check_09(shown: Shown) -> None:
         if row["controller"] == "centralised-filter"
     }
     assert compensated["moving-arc-1"] >= 80.0 > led["moving-arc-1"], (compensated, led)
+    # Commands relative to the pad, alone (moving-slow-trackers): far above the world-frame policy alone at every speed
+    # on both simulators, under the 80 % aim at 1.0 m/s.
+    for stem, before in (
+        ("fast_moving_slow_trackers", "fast_moving_smooth_filter"),
+        ("crazyflie_firmware_fast_moving_slow_trackers", "crazyflie_firmware_fast_moving_smooth_filter"),
+    ):
+        rows = markdown_rows(shown_tables.split(f"**{stem}**", 1)[1].split("**", 1)[0])
+        pad_frame = {row["platform"]: first_number(row["success % [95 % CI]"]) for row in rows}
+        alone = {
+            row["platform"]: first_number(row["success % [95 % CI]"])
+            for row in markdown_rows(shown_tables.split(f"**{before}**", 1)[1].split("**", 1)[0])
+            if row["controller"] == "centralised"
+        }
+        assert set(pad_frame) == set(alone) == {"moving-arc-0.5", "moving-arc-0.75", "moving-arc-1"}, stem
+        assert all(pad_frame[p] > alone[p] for p in alone) and pad_frame["moving-arc-1"] < 80.0, (pad_frame, alone)
     assert "**crazyflie_firmware_filter**" in shown_tables
     # The tables of the filter as it is now, on both simulators, with the landing error under the paper's 2.26 cm.
     stems = ("scaling_filter_guard", "crazyflie_firmware_filter_guard")
