@@ -15,7 +15,8 @@ one a real Crazyflie can follow:
 
 * ``touchdown_speed``: mean speed relative to the pad at each drone's first contact (m/s);
 * ``command_near_pad_p95``: 95th percentile of the commanded speed relative to the pad while a drone
-  is within 0.5 m of its goal (m/s);
+  is within 0.5 m of its goal (m/s); for a pad-frame policy (``TaskConfig.command_frame``) its own command, without
+  the lead the loop adds (``pad_frame_lead``);
 * ``tilt_limit_fraction``: share of flying steps with the tilt within 1 degree of the firmware's 20
   degree limit or beyond (on the firmware columns: how long the tracker is saturated);
 * ``approach_height``: height above the pad when a drone first comes within 0.5 m of it horizontally (m).

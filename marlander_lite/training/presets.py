@@ -370,9 +370,9 @@ recipe, fine-tuned with smooth commands) lands 0-2 % alone in PyFlyt, and an 8 M
 landed nobody (touchdowns at 0.6-1 m/s; docs/transfer.md)."""
 
 PAD_FRAME_LEAD = 0.5
-"""``TaskConfig.pad_frame_lead`` of ``moving-slow-trackers`` (s). Flown with 0.3 s, its first version (trained
-without a lead) landed 92 / 86 % on PyFlyt 0.22's moving arc / line and 98 / 100 % through the firmware tracker; with
-0.6 s 100 / 98 % and 94 / 92 % (50 episodes a cell; docs/transfer.md)."""
+"""``TaskConfig.pad_frame_lead`` of ``moving-slow-trackers`` (s). Trained with a 0.3 s lead, the fine-tune landed 90 /
+86 % on PyFlyt 0.22's moving arc / line; with 0.5 s 98 / 92 %, and 100 / 98 % through the firmware tracker, where a
+fine-tune trained without a lead and flown with 0.6 s fell to 94 / 92 % (50 episodes a cell; docs/transfer.md)."""
 
 _MOVING_SLOW_TRACKERS = _QUICK_SLOW_TRACKERS.replace(
     task={**_QUICK_SLOW_TRACKERS.task, "command_frame": "pad", "pad_frame_lead": PAD_FRAME_LEAD},
@@ -435,7 +435,7 @@ PRESET_NOTES: dict[str, str] = {
     "moving": "beyond the paper: observes the platform velocity; UR10 arcs at 0-0.6 m/s, floor to 1 m, smooth "
     "commands, 16 M steps.",
     "moving-slow-trackers": "beyond the paper: continue a quick-cpu-slow-trackers run (--init-from) 6 M steps on "
-    "moving pads with commands relative to the pad, which the loop carries (led by 0.3 s of its acceleration).",
+    "moving pads with commands relative to the pad, which the loop carries (led by 0.5 s of its acceleration).",
     "moving-crazyflie-finetune": "continue a 'moving' run in the PyBullet Crazyflie swarm, 3 M steps (~30 min).",
     "single-agent": "one drone (MorphoLander-style: applied per drone with APF repulsion), smooth commands, 8 M steps.",
 }
