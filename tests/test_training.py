@@ -115,18 +115,35 @@ def test_paper_slow_trackers_is_the_quick_recipe_with_the_papers_network_and_its
     assert TrainConfig.from_dict(record["train"]) == preset and record["preset"] == "quick-cpu-slow-trackers"
 
 
-@pytest.mark.parametrize(("run", "seed"), [("moving-slow-trackers", 0), ("moving-slow-trackers-seed1", 1)])
-def test_the_shipped_moving_slow_trackers_runs_are_their_preset_continued_from_the_quickstart_runs(run, seed):
+@pytest.mark.parametrize(
+    ("run", "source", "seed", "threads"),
+    [
+        ("moving-slow-trackers", "quick-cpu-slow-trackers-20m", 0, 1),
+        ("moving-slow-trackers-seed1", "quick-cpu-slow-trackers-20m-seed1", 1, 1),
+        ("paper-moving-slow-trackers", "paper-slow-trackers", 0, 2),
+    ],
+)
+def test_the_shipped_moving_slow_trackers_runs_are_their_preset_continued_from_a_shipped_run(
+    run, source, seed, threads
+):
     from pathlib import Path
 
-    # Trained as `marlander train --preset moving-slow-trackers --init-from data/runs/quick-cpu-slow-trackers-20m
-    # --torch-threads 1` (and -seed1 --seed 1): 6 M steps on top of the source's 20 M, commands in the pad frame led by
-    # 0.5 s.
-    record = json.loads((Path(__file__).resolve().parents[1] / "data" / "runs" / run / "config.json").read_text())
+    # Trained as `marlander train --preset moving-slow-trackers --init-from data/runs/SOURCE --seed S` (the first two
+    # with --torch-threads 1): 6 M steps on top of the source's 20 M, commands in the pad frame led by 0.5 s; the
+    # networks are the source's (the paper's 512-512-256-128 actor for paper-slow-trackers).
+    runs = Path(__file__).resolve().parents[1] / "data" / "runs"
+    record = json.loads((runs / run / "config.json").read_text())
     preset = get_preset("moving-slow-trackers")
     observation = {f: False for f in OBSERVATION_OPTIONS} | {"observation_history": 1}  # the source's, kept
-    source = "data/runs/quick-cpu-slow-trackers-20m" + ("-seed1" if seed else "")
-    expected = preset.replace(init_from=source, torch_threads=1, task={**preset.task, **observation}, seed=seed)
+    source_train = TrainConfig.from_dict(json.loads((runs / source / "config.json").read_text())["train"])
+    expected = preset.replace(
+        init_from=f"data/runs/{source}",
+        torch_threads=threads,
+        task={**preset.task, **observation},
+        seed=seed,
+        net_arch=source_train.net_arch,
+        critic_arch=source_train.critic_arch,
+    )
     assert TrainConfig.from_dict(record["train"]) == expected and record["preset"] == "moving-slow-trackers"
     assert record["task"]["command_frame"] == "pad" and record["task"]["pad_frame_lead"] == 0.5
     assert record["finished"]["steps"] == 26_017_792  # the source's 20 M steps and 6 M more
