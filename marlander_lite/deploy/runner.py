@@ -251,11 +251,13 @@ class PolicyRunner:
             raise InvalidAction(f"the policy returned {action.size} numbers; {n3} expected")
         if not np.isfinite(action).all() or np.abs(action).max() > 1.0 + 1e-6:
             raise InvalidAction(f"the action {np.round(action, 3).tolist()} is not finite and within [-1, 1]")
-        pad_vel = np.zeros((self.task.num_drones, 3)) if pad_vel is None else pad_vel
-        try:
-            velocity = task.command_velocity(action, self.task, np.asarray(pad_vel, dtype=float)[None])[0]
-        except ValueError as error:  # a pad velocity that is not finite: no command can be formed, so hover
-            raise InvalidAction(str(error)) from None
+        velocity = task.action_to_velocity(action, self.task.num_drones, self.task.max_speed)
+        if pad_vel is not None:  # a pad-frame policy's command carries its pad (task.in_command_frame)
+            try:
+                velocity = task.in_command_frame(velocity, self.task, np.asarray(pad_vel, dtype=float)[None])
+            except ValueError as error:  # a pad velocity that is not finite: no command can be formed, so hover
+                raise InvalidAction(str(error)) from None
+        velocity = velocity[0]
         return action, clamp_speed(velocity, self.max_speed)
 
     def filter_velocity(

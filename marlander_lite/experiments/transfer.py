@@ -539,9 +539,10 @@ def write_results(config: TransferConfig, results: list[CellResult], out: Path, 
     json_path.write_text(json.dumps({**meta, "cells": [asdict(r) for r in results]}, indent=2) + "\n")
     n = config.swarm_size()
     swarm = "" if n is None else f"a shared policy flying {n} drones, "
-    if load_policy(config.policy).contract.task.get("pad_assignment", "fixed") == "shortest":  # as it was trained
+    contract = load_policy(config.policy).contract
+    if contract.task.get("pad_assignment", "fixed") == "shortest":  # as it was trained
         swarm += "starts paired with the pads by the shortest pairing, "
-    trained = load_policy(config.policy).contract.interface_options()
+    trained = contract.interface_options()
     if config.command_frame not in (None, trained["command_frame"]):
         swarm += (
             f"commands flown in the {config.command_frame} frame (trained in the {trained['command_frame']} frame), "
