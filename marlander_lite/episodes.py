@@ -201,6 +201,7 @@ class LandingEpisodes:
         """Each pad's acceleration ``(num_envs, N, 3)`` m/s^2 estimated from its velocity at each command, zero after a
         reset: the lead of a pad-frame command (``TaskConfig.pad_frame_lead``)."""
         self._carried_pad_vel = np.zeros((e, n, 3))
+        self._carried: np.ndarray | None = None  # this step's carried pad velocity, once formed
         # The frames are stacked last, from what the policy would see now (TaskConfig.observation_history).
         self.history = ObservationHistory(self.task.observation_history, (e, n), self.task.frame_per_drone)
         self._channel_width = channel_width
@@ -240,19 +241,25 @@ class LandingEpisodes:
         self._seen_pad_vel = pad_vel.copy()
         return self._with_acceleration(seen)
 
-    def _carried_pad_velocity(self) -> np.ndarray:
-        """The pad velocity a pad-frame command carries, ``(num_envs, N, 3)`` m/s: each pad's velocity now, led by
-        ``TaskConfig.pad_frame_lead`` times its acceleration estimated from its velocity at each command
-        (:func:`acceleration_step`, the deployment loop's estimate)."""
+    def carried_pad_velocity(self) -> np.ndarray:
+        """The pad velocity the next pad-frame command carries, ``(num_envs, N, 3)`` m/s: each pad's velocity now, led
+        by ``TaskConfig.pad_frame_lead`` times its acceleration estimated from its velocity at each command
+        (:func:`acceleration_step`, the deployment loop's estimate).
+
+        Formed once per step, so reading it before :meth:`step` (a safety filter that works on the world command, as
+        the deployment loop's does) changes nothing: :meth:`step` adds the same array.
+        """
         pad_vel = self.sim.state().pad_vel
         lead = self.task.pad_frame_lead
         if not lead:
             return pad_vel
-        self.carried_acceleration = acceleration_step(
-            self.carried_acceleration, self._carried_pad_vel, pad_vel, self.task.dt
-        )
-        self._carried_pad_vel = np.array(pad_vel)
-        return pad_vel + lead * self.carried_acceleration
+        if self._carried is None:
+            self.carried_acceleration = acceleration_step(
+                self.carried_acceleration, self._carried_pad_vel, pad_vel, self.task.dt
+            )
+            self._carried_pad_vel = np.array(pad_vel)
+            self._carried = pad_vel + lead * self.carried_acceleration
+        return self._carried
 
     def _measure(self, s: SwarmState, command: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         rel_pos = s.pos - (s.pad_pos + self._goal_lift)
@@ -327,6 +334,8 @@ class LandingEpisodes:
         if self.task.pad_frame_lead:
             self.carried_acceleration[ids] = 0.0
             self._carried_pad_vel[ids] = self.sim.state().pad_vel[ids]
+            if self._carried is not None:  # formed this step: a new episode's first command carries its pad as it is
+                self._carried[ids] = self._carried_pad_vel[ids]
         return self.history.reset(self._with_acceleration(seen, ids), ids)
 
     def relaunch(self, drones: np.ndarray) -> np.ndarray:
@@ -362,8 +371,9 @@ class LandingEpisodes:
         if velocity.shape[0] != self.num_envs:
             raise ValueError(f"Action batch has {velocity.shape[0]} environments; expected {self.num_envs}.")
         if cfg.command_frame != "world":
-            velocity = task.in_command_frame(velocity, cfg, self._carried_pad_velocity())
+            velocity = task.in_command_frame(velocity, cfg, self.carried_pad_velocity())
         self.sim.step(velocity)
+        self._carried = None
         s = self.sim.state()
         active = ~self.landed
         if self.compiled:  # the same formulas as below, in one compiled pass

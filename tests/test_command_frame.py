@@ -82,8 +82,74 @@ def test_the_safety_filter_works_on_the_world_command_of_a_pad_frame_policy():
     world, _ = filter_actions(obs, head_on + pad_vel / 3.0, offsets, 3.0, config)
     np.testing.assert_allclose(pad_frame * 3.0 + pad_vel, world * 3.0, atol=1e-12)
     assert not np.allclose(pad_frame, head_on)  # the rule did bind
-    with pytest.raises(ValueError, match=r"pad-frame policy .* needs each pad's velocity"):
+    with pytest.raises(ValueError, match=r"pad-frame policy .* needs the pad velocity its commands carry"):
         with_safety_filter(lambda o: o, 2, offsets, 3.0, config, policy_dt=1 / 24, pads_move=True, command_frame="pad")
+
+
+def test_the_simulators_filter_takes_the_pad_velocity_from_the_loop_as_deployment_does():
+    """A pad-frame policy that does not observe its pad's velocity is filtered on moving pads when the loop passes the
+    pad velocity (motion capture's in the lab, the simulator's here): the offset is the velocity the command carries,
+    lead included, and the velocity-step limit compares world velocities."""
+    config = SafetyFilterConfig(gain=6.0, min_distance=0.19, reaction_time=0.2)
+    obs = np.zeros((1, 2, 13))
+    obs[0, :, 0:3] = [[-0.075, 0.0, 1.0], [0.075, 0.0, 1.0]]
+    obs[0, :, 3:7] = [0.0, 0.0, 0.0, 1.0]
+    offsets = np.array([[-0.125, 0.0, 0.0], [0.125, 0.0, 0.0]])
+    pad_vel = np.full((1, 2, 3), [0.3, 0.0, 0.0])
+    carried = np.full((1, 2, 3), [0.45, 0.0, 0.0])  # the pad velocity led by its acceleration
+    head_on = np.array([[0.3, 0.0, 0.0, -0.3, 0.0, 0.0]])
+    filtered = with_safety_filter(
+        lambda o: head_on, 2, offsets, 3.0, config, policy_dt=1 / 24, pads_move=True, command_frame="pad",
+        pad_velocity=lambda: pad_vel, carried_pad_velocity=lambda: carried,
+    )  # fmt: skip
+    expected, _ = filter_actions(obs, head_on.reshape(1, 2, 3), offsets, 3.0, config, command_offset=carried)
+    np.testing.assert_allclose(filtered(obs.reshape(1, 26)), expected.reshape(1, 6), atol=1e-12)
+    without_lead = with_safety_filter(
+        lambda o: head_on, 2, offsets, 3.0, config, policy_dt=1 / 24, pads_move=True, command_frame="pad",
+        pad_velocity=lambda: pad_vel,
+    )  # fmt: skip
+    expected, _ = filter_actions(obs, head_on.reshape(1, 2, 3), offsets, 3.0, config, command_offset=pad_vel)
+    np.testing.assert_allclose(without_lead(obs.reshape(1, 26)), expected.reshape(1, 6), atol=1e-12)
+    step = SafetyFilterConfig(low_velocity_step=0.5)
+    with_safety_filter(lambda o: head_on, 2, offsets, 3.0, step, pads_move=True, pad_velocity=lambda: pad_vel)
+
+
+def test_reading_the_carried_pad_velocity_before_a_step_changes_nothing():
+    """What a safety filter reads before the step is what the step adds (action 0: the command is that velocity), and
+    the rollout is the one in which nobody read it, new episodes included."""
+    cfg = TaskConfig(num_drones=2, command_frame="pad", pad_frame_lead=0.4)
+    runs = []
+    for read in (False, True):
+        sim = PointMassSwarm(cfg, PlatformConfig(kind="moving-linear", speed=0.5), num_envs=3)
+        episodes = LandingEpisodes(sim, seed=5)
+        episodes.reset()
+        commands = []
+        for k in range(150):
+            if read:
+                carried = episodes.carried_pad_velocity().copy()
+                np.testing.assert_array_equal(episodes.carried_pad_velocity(), carried)  # formed once per step
+            if k % 40 == 39:
+                episodes.reset(np.array([1]))
+                if read:
+                    np.testing.assert_array_equal(episodes.carried_pad_velocity()[1], sim.state().pad_vel[1])
+                    carried = episodes.carried_pad_velocity().copy()
+            episodes.step(np.zeros((3, 6)))
+            commands.append(episodes.previous_command.copy())
+            if read:
+                np.testing.assert_array_equal(commands[-1], carried)
+        runs.append(np.array(commands))
+    np.testing.assert_array_equal(runs[0], runs[1])
+    assert np.abs(runs[0]).max() > 0.6  # beyond the pads' 0.5 m/s: the lead carried their acceleration
+
+
+def test_the_matrix_filters_a_pad_frame_policy_on_moving_pads():
+    """The shipped pad-frame policy, which does not observe its pad's velocity, flown through the moving-pad filter
+    settings on the moving line (the filter reads the simulator's pad velocity): it lands, as its matrix says."""
+    result = transfer.fly_cell(
+        "data/policies/moving-slow-trackers.safetensors", "point mass", "line 0.2-0.5 m/s", 10, 0, "vicon",
+        {"cone_radius": 0.04, "reaction_time": 0.35, "low_velocity_step": 0.5},
+    )  # fmt: skip
+    assert result.successes >= 8
 
 
 class Still:

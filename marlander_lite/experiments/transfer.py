@@ -29,7 +29,8 @@ centre), ``out_of_arena`` and ``timeouts``.
 ``marlander transfer POLICY`` prints the table and writes ``transfer.csv`` and ``transfer.json``. With
 ``--safety-filter`` (:attr:`TransferConfig.safety_filter`) every command goes through the safety filter that
 ``marlander deploy`` puts after the policy (:mod:`marlander_lite.swarm.safety_filter`): the matrix of the flight a lab
-flies, and the commands measured are the filtered ones.
+flies, and the commands measured are the filtered ones. The filter reads each pad's velocity from the simulator, as
+the deployment loop reads it from motion capture, and filters a pad-frame policy's world command, lead included.
 """
 
 from __future__ import annotations
@@ -366,6 +367,8 @@ def cell_actor(
         pads_move=world.sim.platform.is_moving,
         tracker_lag=lag,
         command_frame=task_config.command_frame,
+        pad_velocity=lambda: world.sim.state().pad_vel,  # motion capture's, in the lab
+        carried_pad_velocity=world.carried_pad_velocity if task_config.command_frame == "pad" else None,
     )
 
 

@@ -501,6 +501,8 @@ def with_safety_filter(
     pads_move: bool = False,
     tracker_lag: TrackerLag | None = None,
     command_frame: str = "world",
+    pad_velocity: Callable[[], np.ndarray] | None = None,
+    carried_pad_velocity: Callable[[], np.ndarray] | None = None,
 ) -> BatchAct:
     """Wrap a batch actor (centralised observations ``(E, 13 N)`` -> actions ``(E, 3 N)`` in [-1, 1]) with
     :func:`filter_commands`: actions are read as commands of ``max_speed`` m/s per unit (eq. 3).
@@ -508,50 +510,58 @@ def with_safety_filter(
     Positions are eq. 2's goal-relative ``p`` plus each drone's pad offset ``(N, 3)`` m (the plate never yaws,
     so their differences are the drones' relative positions); velocities are eq. 2's ``v``.
 
-    With ``config.pad_lead`` > 0 the wrapper estimates each pad's acceleration (:class:`PadAcceleration`) from the
-    pad velocities in the observations, which needs ``observes_pad_velocity`` (the policy's
-    ``TaskConfig.observe_platform_velocity``) and the time between two calls, ``policy_dt`` (s).
+    Some rules need each pad's velocity (m/s, world frame). The wrapper reads it from the observations when the policy
+    observes it (``observes_pad_velocity``, the policy's ``TaskConfig.observe_platform_velocity``), or else from
+    ``pad_velocity`` (no arguments -> ``(E, N, 3)``, read once per call): where the loop knows it otherwise, as the
+    deployment loop does from motion capture whatever the policy (in a simulator, its state).
+    With ``config.pad_lead`` > 0 the wrapper estimates each pad's acceleration (:class:`PadAcceleration`) from those
+    pad velocities, which needs them and the time between two calls, ``policy_dt`` (s).
     With ``config.latency_compensation`` > 0 the policy reads the observations predicted that far ahead
     (:func:`predict_observations`), and so do the filter's guards (:func:`filter_actions`).
     With ``config.identified_lag_share`` > 0 the wrapper identifies the tracker with ``tracker_lag`` (pass one to read
     what it identified; None: a new :class:`TrackerLag` starting from ``latency_compensation / identified_lag_share``)
     and sets ``L`` per env from it.
     With ``config.low_velocity_step`` > 0 the velocity-step limit compares commands with each drone's velocity in the
-    world frame: eq. 2's ``v`` plus the pad velocity in the observations (``observes_pad_velocity``), or ``v`` itself
-    on pads at rest. On pads that move (``pads_move``) it therefore needs ``observes_pad_velocity``.
+    world frame: eq. 2's ``v`` plus the pad velocity, or ``v`` itself on pads at rest. On pads that move
+    (``pads_move``) it therefore needs the pad velocities.
     With ``command_frame`` ``"pad"`` (``TaskConfig.command_frame``) an action is a velocity relative to the pad: the
-    filter works on the world command, the action plus the observed pad velocity (on moving pads that needs
-    ``observes_pad_velocity``), and hands back the filtered command relative to the pad again.
+    filter works on the world command, the action plus the pad velocity the command carries, and hands back the
+    filtered command relative to the pad again. That velocity comes from ``carried_pad_velocity`` (no arguments ->
+    ``(E, N, 3)`` m/s, read once per call: what the loop will add, lead included, as the deployment loop filters
+    the command it sends; e.g. :meth:`~marlander_lite.episodes.LandingEpisodes.carried_pad_velocity`), or else is the
+    pad velocity itself (without a lead). On moving pads it needs one of them.
     """
     config = config or SafetyFilterConfig()
-    if command_frame == "pad" and pads_move and not observes_pad_velocity:
+    knows_pad_velocity = observes_pad_velocity or pad_velocity is not None
+    how = (
+        "pass pad_velocity (the loop's, e.g. the simulator's state), or fly a policy trained with "
+        "observe_platform_velocity, as the moving preset is"
+    )
+    if command_frame == "pad" and pads_move and not knows_pad_velocity and carried_pad_velocity is None:
         raise ValueError(
-            "A pad-frame policy (command_frame='pad') on moving pads needs each pad's velocity in the observations "
-            "for the safety filter to see the world command (a policy trained with observe_platform_velocity); fly "
-            "it without the filter, or on static pads."
+            "A pad-frame policy (command_frame='pad') on moving pads needs the pad velocity its commands carry for "
+            f"the safety filter to see the world command: pass carried_pad_velocity (the loop's, e.g. "
+            f"LandingEpisodes.carried_pad_velocity), or {how}; or fly it without the filter, or on static pads."
         )
-    if config.low_velocity_step > 0 and pads_move and not observes_pad_velocity:
+    if config.low_velocity_step > 0 and pads_move and not knows_pad_velocity:
         raise ValueError(
-            "low_velocity_step > 0 on moving pads needs each pad's velocity in the observations (a policy trained "
-            "with observe_platform_velocity, as the moving preset is): without it the limit would hold the drone to "
-            "its velocity relative to the pad. Fly it on static pads, or set low_velocity_step=0."
+            "low_velocity_step > 0 on moving pads needs each pad's velocity: without it the limit would hold the drone "
+            f"to its velocity relative to the pad. {how[0].upper()}{how[1:]}; or fly it on static pads, or set "
+            "low_velocity_step=0."
         )
     lag = None
     if config.identified_lag_share > 0:
-        if not policy_dt or (pads_move and not observes_pad_velocity):
+        if not policy_dt or (pads_move and not knows_pad_velocity):
             raise ValueError(
                 "identified_lag_share > 0 needs the policy period (policy_dt) and, on moving pads, each pad's velocity "
-                "in the observations (a policy trained with observe_platform_velocity): the tracker is identified "
-                "from world-frame velocities. Or set identified_lag_share=0."
+                f"(the tracker is identified from world-frame velocities): {how}. Or set identified_lag_share=0."
             )
         lag = tracker_lag or config.tracker_lag(policy_dt)
     lead = None
     if config.pad_lead > 0:
-        if not (observes_pad_velocity and policy_dt):
+        if not (knows_pad_velocity and policy_dt):
             raise ValueError(
-                "pad_lead > 0 needs each pad's velocity in the observations (a policy trained with "
-                "observe_platform_velocity, as the moving preset is) and the policy period (policy_dt); "
-                "or set pad_lead=0."
+                f"pad_lead > 0 needs each pad's velocity ({how}) and the policy period (policy_dt); or set pad_lead=0."
             )
         lead, calls = PadAcceleration(), itertools.count()
     offsets = np.asarray(pad_offsets, dtype=float)
@@ -561,15 +571,21 @@ def with_safety_filter(
     def filtered(obs: np.ndarray) -> np.ndarray:
         obs = np.asarray(obs, dtype=float)
         per_drone = obs.reshape(len(obs), num_drones, -1)
-        pad_vel = per_drone[..., PLATFORM_VELOCITY] if observes_pad_velocity else None
+        pad_vel = None
+        if observes_pad_velocity:
+            pad_vel = per_drone[..., PLATFORM_VELOCITY]
+        elif pad_velocity is not None:
+            pad_vel = np.asarray(pad_velocity(), dtype=float)
         latency: float | np.ndarray = config.latency_compensation
         if lag is not None:
             lags = lag.observe(per_drone[..., EQ2_POSITION], per_drone[..., EQ2_VELOCITY], pad_vel)
             latency = np.minimum(config.identified_lag_share * lags, 0.5)[:, None, None]  # (E, 1, 1) s
         ahead = predict_observations(per_drone, latency).reshape(obs.shape)
         command = np.asarray(act(ahead), dtype=float).reshape(len(obs), num_drones, 3)
-        accel = None if lead is None else lead.update(per_drone[..., PLATFORM_VELOCITY], next(calls) * policy_dt)
-        frame_offset = pad_vel if command_frame == "pad" else None
+        accel = None if lead is None else lead.update(pad_vel, next(calls) * policy_dt)
+        frame_offset = None
+        if command_frame == "pad":
+            frame_offset = pad_vel if carried_pad_velocity is None else np.asarray(carried_pad_velocity(), dtype=float)
         actions, _ = filter_actions(
             per_drone, command, offsets, max_speed, config, accel, pad_vel, latency, command_offset=frame_offset
         )
