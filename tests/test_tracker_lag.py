@@ -139,7 +139,7 @@ def test_bad_input_is_refused_with_what_is_allowed() -> None:
     config = SafetyFilterConfig(latency_compensation=0.12, identified_lag_share=0.5)
     with pytest.raises(ValueError, match=r"needs the policy period \(policy_dt\)"):
         with_safety_filter(lambda obs: obs[:, :3], 1, np.zeros((1, 3)), 1.0, config)
-    with pytest.raises(ValueError, match=r"on moving pads, each pad's velocity in the observations"):
+    with pytest.raises(ValueError, match=r"on moving pads, each pad.s velocity \(the tracker is identified"):
         with_safety_filter(lambda obs: obs[:, :3], 1, np.zeros((1, 3)), 1.0, config, policy_dt=DT, pads_move=True)
 
 
