@@ -709,6 +709,28 @@ def check_08(shown: Shown) -> None:
     pattern = r"^flown here: moving-slow-trackers on the firmware tracker's moving line: (\d+) of (\d+)"
     [(landed, flown)] = shown.numbers(pattern)
     assert flown >= 2 and landed >= 0.5 * flown
+    # Section 4r: a velocity step that follows the tracker. Each flight's count of moving cells at 90 % and worst cell
+    # are its csv's; each column's step is 0.5 m/s * max(1, T / 0.45 s) for the lag T its flights identified.
+    for name in (
+        "moving-slow-trackers",
+        "moving-slow-trackers-lead-0.3",
+        "moving-slow-trackers-velocity-step-filter",
+        "moving-slow-trackers-tracker-step-filter",
+        "moving-slow-trackers-lead-0.3-tracker-step-filter",
+    ):
+        cells = [c for c in transfer_csv(name) if c["row"].startswith(("arc", "line"))]
+        pattern = rf"^{name} \(.+\): (\d+) of (\d+) moving cells at 90 % or more; worst (\S+) %"
+        [(at_90, count, worst)] = shown.numbers(pattern)
+        assert count == len(cells) == 24 and at_90 == sum(float(c["success_rate"]) >= 0.9 for c in cells), name
+        assert close(worst, 100 * min(float(c["success_rate"]) for c in cells), 0.051), name
+    steps = re.findall(r"^(.+): identified lag (\S+) s -> velocity step (\S+) m/s; the line (\S+) %$", text, re.M)
+    following = transfer_csv("moving-slow-trackers-tracker-step-filter")
+    lines = {c["column"]: c for c in following if c["row"].startswith("line")}
+    assert len(steps) == len(lines) == 12
+    for column, lag, step, rate in steps:
+        assert close(float(lag), float(lines[column]["identified_lag_s"]), 0.0051)
+        assert close(float(step), 0.5 * max(1.0, float(lines[column]["identified_lag_s"]) / 0.45), 0.0051)
+        assert close(float(rate), 100 * float(lines[column]["success_rate"]), 0.051)
     # step responses (with and without RotorPy, and with PyFlyt), transfer bars, the pad's acceleration, the late
     # descent, the swing, the steeper cone's landing errors, PyFlyt held still, the opening family, the integrator,
     # the landing errors of 12 and 20 M steps in PyFlyt 0.22, the two networks on the same recipe, moving pads in the

@@ -262,3 +262,88 @@ def test_a_drone_motion_capture_lost_gives_no_sample() -> None:
         lag.commanded(command := random_commands(rng, plant.p.shape))
         plant.step(command)
     assert identified[0] == pytest.approx(0.6, rel=0.03)
+
+
+def test_the_velocity_step_grows_with_the_identified_time_constant_by_hand() -> None:
+    """``low_velocity_step * max(1, T / low_velocity_step_lag)``: 0.5 m/s at 0.45 s is 1.0 m/s at 0.9 s and stays 0.5
+    m/s for a faster tracker; off, or before any time constant, it is ``low_velocity_step``. Without a step to scale,
+    or with a reference outside the identifiable range, the setting is refused and says what to set."""
+    config = SafetyFilterConfig(low_velocity_step=0.5, low_velocity_step_lag=0.45)
+    np.testing.assert_allclose(config.velocity_step(np.array([0.3, 0.45, 0.9])), [0.5, 0.5, 1.0])
+    assert config.velocity_step(None) == 0.5
+    assert SafetyFilterConfig(low_velocity_step=0.5).velocity_step(0.9) == 0.5
+    assert config.tracker_lag(DT) is not None and config.tracker_lag(DT).prior == pytest.approx(0.45)
+    both = dataclasses.replace(config, latency_compensation=0.12, identified_lag_share=0.5)
+    assert both.tracker_lag(DT).prior == pytest.approx(0.24)  # the share's prior: one identification serves both
+    with pytest.raises(ValueError, match=r"low_velocity_step_lag must be 0 \(off\) or within .* low_velocity_step > 0"):
+        SafetyFilterConfig(low_velocity_step_lag=0.45)
+    with pytest.raises(ValueError, match=r"Try low_velocity_step=0.5 with low_velocity_step_lag=0.45"):
+        SafetyFilterConfig(low_velocity_step=0.5, low_velocity_step_lag=3.0)
+
+
+def test_the_simulators_filter_scales_the_step_by_the_tracker_it_identified() -> None:
+    """A drone 0.1 m above its goal (below the guards' 0.3 m), at rest, told to fly off at 2 m/s: the filter lets its
+    command differ from its velocity by 0.5 m/s when the tracker reads as 0.3 s, by 1.0 m/s when it reads as 0.9 s
+    (the identification's prior, before any sample), and the speed of the filtered command says which."""
+    config = SafetyFilterConfig(low_velocity_step=0.5, low_velocity_step_lag=0.45, centring_gain=0.0)
+    obs = np.zeros((1, 13))
+    obs[0, 2], obs[0, 6] = 0.1, 1.0
+    speeds = {}
+    for prior in (0.3, 0.9):
+        act = with_safety_filter(
+            lambda o: np.array([[2.0 / 3.0, 0.0, 0.0]]), 1, np.zeros((1, 3)), 3.0, config, policy_dt=DT,
+            tracker_lag=TrackerLag(prior, DT),
+        )  # fmt: skip
+        speeds[prior] = float(np.hypot(*(act(obs)[0, :2] * 3.0)))
+    assert speeds[0.3] == pytest.approx(0.5)
+    assert speeds[0.9] == pytest.approx(1.0)
+
+
+def test_the_runner_scales_its_velocity_step_by_the_tracker_it_identified() -> None:
+    """The deployment runner identifies a 0.9 s tracker from the setpoints it sent (10 s of random ones) and grows the
+    step from 0.5 to about 1.0 m/s; a drone low over its pad, at rest and told 2 m/s, is then sent about 1.0 m/s."""
+    config = SafetyFilterConfig(low_velocity_step=0.5, low_velocity_step_lag=0.45, centring_gain=0.0)
+
+    class Still:
+        def act(self, obs: np.ndarray) -> np.ndarray:
+            return np.zeros((1, 6))
+
+    runner = PolicyRunner(Still(), TaskConfig(num_drones=2), 3.0, config)
+    plant, rng = FirstOrderTracker([0.9]), np.random.default_rng(4)
+    goals, zeros = np.array([[-0.5, 0.0, 0.0], [0.5, 0.0, 0.0]]), np.zeros((2, 3))
+
+    def estimate(t: float, pos: np.ndarray, vel: np.ndarray) -> SwarmEstimate:
+        return SwarmEstimate(
+            t, pos, np.tile([0.0, 0.0, 0.0, 1.0], (2, 1)), vel, zeros, goals, zeros, goals,
+            np.zeros(2), np.zeros(2), np.zeros(2, bool), np.zeros(2, bool),
+        )  # fmt: skip
+
+    assert runner.velocity_step == 0.5
+    runner.observe(estimate(0.0, plant.p[0] + goals, plant.v[0]))
+    for k in range(1, 241):
+        if k % 6 == 1:
+            runner.previous_command = random_commands(rng, (2, 3))
+        plant.step(runner.previous_command[None])
+        runner.observe(estimate(k * DT, plant.p[0] + goals, plant.v[0]))
+    assert runner.velocity_step == pytest.approx(1.0, rel=0.05)
+    low = estimate(241 * DT, goals + np.array([0.0, 0.0, 0.1]), zeros)
+    sent, _ = runner.filter_velocity(np.array([[-2.0, 0.0, 0.0], [2.0, 0.0, 0.0]]), low, np.zeros(2, bool))  # apart
+    np.testing.assert_allclose(np.abs(sent[:, 0]), runner.velocity_step, rtol=1e-9)
+
+
+def test_a_rehearsal_logs_the_velocity_step_it_identified_and_lands() -> None:
+    """With ``low_velocity_step_lag`` the mission logs a ``tracker_lag`` event whenever the step has moved 0.1 m/s from
+    the one last logged (the setting at first), each with ``step = 0.5 max(1, T / 0.2 s)`` for the lag ``T`` it
+    identified; the latency compensation stays the setting, and both drones land. (0.2 s, below the firmware tracker's
+    lag, so that the step does move.)"""
+    lab = load_lab_config(EXAMPLE_CONFIG)
+    section = lab.safety_filter.with_settings({"low_velocity_step": 0.5, "low_velocity_step_lag": 0.2})
+    result = rehearse(lab.replace(safety_filter=section), QUICK, simulator="crazyflie", seed=0)
+    assert result.passed and all(result.mission.on_pad), result.summary()
+    logged = [e.message for e in result.mission.events if e.kind == "tracker_lag"]
+    assert logged, result.summary()
+    for message in logged:
+        lag, latency = map(float, re.findall(r"(\d+\.\d+) s", message))
+        step = float(re.findall(r"velocity step (\d+\.\d+) m/s", message)[0])
+        assert latency == 0.0
+        assert step == pytest.approx(0.5 * max(1.0, lag / 0.2), abs=0.02)  # two decimals of each

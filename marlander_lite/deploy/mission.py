@@ -57,6 +57,8 @@ from marlander_lite.rotations import tilt_deg
 LATENCY_LOG_STEP = 0.05
 """s: a ``tracker_lag`` event is logged each time the identified latency compensation has moved this far from the one
 last logged (the filter's ``identified_lag_share``): the log shows what the flight identified, not every step."""
+STEP_LOG_STEP = 0.1
+"""m/s: so for the velocity step that the identified lag scales (the filter's ``low_velocity_step_lag``)."""
 
 
 class Mission(LandingControl):
@@ -114,6 +116,8 @@ class Mission(LandingControl):
         self.book = TickBook()
         self.logged_latency = self.runner.latency_compensation
         """The filter's latency compensation (s) the last ``tracker_lag`` event reported (the setting at first)."""
+        self.logged_step = self.runner.velocity_step
+        """The filter's velocity step (m/s) the last ``tracker_lag`` event reported (the setting at first)."""
 
     # ------------------------------------------------------------------ read-only views
     @property
@@ -389,13 +393,15 @@ class Mission(LandingControl):
             return  # the safety rules hover; the policy waits for fresh data
         out = self.output
         out.obs = self.runner.observe(est)
-        latency = self.runner.latency_compensation
-        if abs(latency - self.logged_latency) >= LATENCY_LOG_STEP:
-            assert self.runner.tracker_lag is not None  # the compensation changes only when it is identified
+        latency, step = self.runner.latency_compensation, self.runner.velocity_step
+        if abs(latency - self.logged_latency) >= LATENCY_LOG_STEP or abs(step - self.logged_step) >= STEP_LOG_STEP:
+            assert self.runner.tracker_lag is not None  # both change only as the lag is identified
             lag = float(self.runner.tracker_lag.time_constant()[0])
             message = f"velocity tracker lag identified: {lag:.2f} s; latency compensation {latency:.2f} s"
+            if step != self.logged_step:
+                message += f"; velocity step {step:.2f} m/s"
             self.event("tracker_lag", message)
-            self.logged_latency = latency
+            self.logged_latency, self.logged_step = latency, step
         try:
             out.action, velocity = self.runner.act(out.obs, est.goal, self.runner.carried_pad_velocity(est))
             out.unfiltered = velocity

@@ -113,9 +113,11 @@ class PolicyRunner:
         new estimate time), the first frame in every slot at the first step, as after a reset in the simulators."""
         self._history_at: float | None = None
         self._identified_latency: float | None = None
+        self._identified_step: float | None = None
         self.tracker_lag = None if safety_filter is None else safety_filter.tracker_lag(task_config.dt)
         """The velocity tracker's time constant, identified from the setpoints sent (:attr:`previous_command`) and the
-        velocities that followed, once per policy step; None unless the filter's ``identified_lag_share`` is set."""
+        velocities that followed, once per policy step; None unless the filter's ``identified_lag_share`` or
+        ``low_velocity_step_lag`` is set."""
         self._lag_at: float | None = None
 
     @property
@@ -148,7 +150,20 @@ class PolicyRunner:
         self._lag_at = est.t
         rel_goal, rel_vel = (est.pos - est.goal)[None], (est.vel - est.pad_vel)[None]
         time_constant = float(lag.observe(rel_goal, rel_vel, est.pad_vel[None])[0])
-        self._identified_latency = min(self.safety_filter.identified_lag_share * time_constant, 0.5)
+        if self.safety_filter.identified_lag_share > 0:
+            self._identified_latency = min(self.safety_filter.identified_lag_share * time_constant, 0.5)
+        if self.safety_filter.low_velocity_step_lag > 0:
+            self._identified_step = float(self.safety_filter.velocity_step(time_constant))
+
+    @property
+    def velocity_step(self) -> float:
+        """The step (m/s) of the filter's velocity-step limit; 0 without a filter. With ``low_velocity_step_lag``,
+        scaled by the time constant identified so far (:meth:`SafetyFilterConfig.velocity_step`)."""
+        if self.safety_filter is None:
+            return 0.0
+        if self._identified_step is not None:
+            return self._identified_step
+        return self.safety_filter.low_velocity_step
 
     def ahead(self, est: SwarmEstimate) -> SwarmEstimate:
         """The estimate predicted :attr:`latency_compensation` ahead at constant velocity: every drone at
@@ -292,6 +307,7 @@ class PolicyRunner:
                 max_speed=self.max_speed,
                 pad_acceleration=lead,
                 pad_velocity=est.pad_vel,
+                velocity_step=self.velocity_step,
             )
         except ValueError as error:
             raise InvalidAction(f"the safety filter failed: {error}") from None

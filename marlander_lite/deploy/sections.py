@@ -323,6 +323,11 @@ class SafetyFilterSection:
     sent and the velocities that followed, and sets the latency compensation to this share of its time constant (at
     most 0.5 s), starting from ``latency_compensation``; 0: off, the compensation stays ``latency_compensation``. For a
     tracker whose lag you have not measured (docs/transfer.md, "A compensation the flight identifies")."""
+    low_velocity_step_lag: Annotated[Real, Field(ge=0, le=2)] = _FILTER_DEFAULTS.low_velocity_step_lag
+    """Reference time constant (s) of the velocity-step limit: the runner identifies the drones' velocity tracker in
+    flight and scales ``low_velocity_step`` by ``max(1, T / this)``, so that a slow tracker, which tilts less for the
+    same step and needs its setpoint well ahead of its velocity, gets a larger one; 0: off. 0.45 with
+    ``low_velocity_step`` 0.5 (docs/transfer.md, "A velocity step that follows the tracker")."""
 
     def __post_init__(self) -> None:
         self.filter_config()  # the filter's own checks, as a ConfigError naming this section

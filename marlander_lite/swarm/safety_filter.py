@@ -203,6 +203,15 @@ class SafetyFilterConfig:
     velocities that followed (:class:`~marlander_lite.swarm.tracker_lag.TrackerLag`; before the first samples ``T`` is
     ``latency_compensation / s``) and flies with ``L = min(s T, 0.5 s)``: the best fixed ``L`` was about half a slow
     tracker's time constant, and one that large cost a fast tracker landing accuracy (docs/transfer.md). At most 2."""
+    low_velocity_step_lag: float = 0.0
+    """``T_ref`` of the velocity-step limit (s), 0 = off (the step is ``low_velocity_step`` throughout). With
+    ``T_ref`` > 0 every flight identifies its velocity tracker's time constant ``T`` (as ``identified_lag_share`` does;
+    before the first samples ``T`` is ``T_ref``) and the step becomes ``low_velocity_step * max(1, T / T_ref)``. A
+    tracker of time constant ``T`` accelerates a drone at about ``(u - v) / T`` and so tilts it by about
+    ``atan((u - v) / (g T))``: the same tilt allows a step ``T / T_ref`` times larger on a slower tracker, which needs
+    its command well ahead of its velocity. 0.5 m/s at 0.45 s (the held-out and firmware trackers' identified time
+    constants) kept the held-out tracker on its moving pads while a fixed 0.5 m/s cost PyFlyt's (0.9-1.1 s) and the
+    combined column's line 18-30 points (docs/transfer.md). Needs ``low_velocity_step`` > 0."""
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -239,15 +248,35 @@ class SafetyFilterConfig:
                     f"s; got identified_lag_share={self.identified_lag_share!r}, latency_compensation="
                     f"{self.latency_compensation!r}. Try identified_lag_share=0.5 with latency_compensation=0.12."
                 )
+        if self.low_velocity_step_lag > 0:
+            low, high = TIME_CONSTANT_RANGE
+            if not low <= self.low_velocity_step_lag <= high or self.low_velocity_step == 0:
+                raise ValueError(
+                    f"SafetyFilterConfig.low_velocity_step_lag must be 0 (off) or within [{low}, {high}] s with "
+                    f"low_velocity_step > 0, the step it scales; got low_velocity_step_lag="
+                    f"{self.low_velocity_step_lag!r}, low_velocity_step={self.low_velocity_step!r}. Try "
+                    "low_velocity_step=0.5 with low_velocity_step_lag=0.45."
+                )
         if not isinstance(self.iterations, int) or self.iterations < 1:
             raise ValueError(f"SafetyFilterConfig.iterations must be an integer >= 1, got {self.iterations!r}.")
 
     def tracker_lag(self, policy_dt: float) -> TrackerLag | None:
-        """A new :class:`TrackerLag` for ``identified_lag_share``, starting from ``latency_compensation /
-        identified_lag_share``, for a loop acting every ``policy_dt`` s; None when the share is 0 (off)."""
-        if not self.identified_lag_share:
-            return None
-        return TrackerLag(self.latency_compensation / self.identified_lag_share, policy_dt)
+        """A new :class:`TrackerLag` for ``identified_lag_share`` (starting from ``latency_compensation /
+        identified_lag_share``) or else ``low_velocity_step_lag`` (starting from it), for a loop acting every
+        ``policy_dt`` s; None when both are 0 (off)."""
+        if self.identified_lag_share:
+            return TrackerLag(self.latency_compensation / self.identified_lag_share, policy_dt)
+        if self.low_velocity_step_lag:
+            return TrackerLag(self.low_velocity_step_lag, policy_dt)
+        return None
+
+    def velocity_step(self, time_constant: float | np.ndarray | None = None) -> float | np.ndarray:
+        """The velocity-step limit (m/s) for a tracker of identified ``time_constant`` (s; a number or per env):
+        ``low_velocity_step * max(1, T / low_velocity_step_lag)``, or ``low_velocity_step`` when that is off or no
+        time constant is given."""
+        if not self.low_velocity_step_lag or time_constant is None:
+            return self.low_velocity_step
+        return self.low_velocity_step * np.maximum(1.0, np.asarray(time_constant) / self.low_velocity_step_lag)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -311,6 +340,7 @@ def filter_commands(
     max_speed: float | None = None,
     pad_acceleration: np.ndarray | None = None,
     pad_velocity: np.ndarray | None = None,
+    velocity_step: float | np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Velocity commands changed as little as the rules allow (module docstring).
 
@@ -330,6 +360,9 @@ def filter_commands(
         pad_velocity: each drone's pad's velocity ``(..., N, 3)`` m/s, in the frame of ``velocities``, for the
             velocity-step limit (which needs each drone's velocity in that frame and relative to its pad); None: the
             pads are at rest in that frame.
+        velocity_step: the velocity-step limit's step (m/s), a number or ``(..., 1)`` (one per env, as
+            :meth:`SafetyFilterConfig.velocity_step` scales it); None: ``config.low_velocity_step``. Only with
+            ``config.low_velocity_step`` > 0.
 
     Returns:
         ``(filtered, acted)``: commands ``(..., N, 3)`` m/s and ``(..., N)`` bool, True where a drone's command
@@ -362,7 +395,8 @@ def filter_commands(
             if pad_vel.shape != command.shape or not np.isfinite(pad_vel).all():
                 raise ValueError(f"pad_velocity must be a finite {command.shape} array, got shape {pad_vel.shape}.")
             relative = vel - pad_vel
-        command = _limit_velocity_step(command, vel, relative, goal, config)
+        step = config.low_velocity_step if velocity_step is None else velocity_step
+        command = _limit_velocity_step(command, vel, relative, goal, config, step)
     u = command.copy()
     if n >= 2:
         u = _separate(pos, vel, u, settled, goal, config)
@@ -454,14 +488,20 @@ def _wake_rule(
 
 
 def _limit_velocity_step(
-    command: np.ndarray, vel: np.ndarray, relative: np.ndarray, goal: np.ndarray, config: SafetyFilterConfig
+    command: np.ndarray,
+    vel: np.ndarray,
+    relative: np.ndarray,
+    goal: np.ndarray,
+    config: SafetyFilterConfig,
+    allowed: float | np.ndarray,
 ) -> np.ndarray:
     """The velocity-step limit: below ``cone_height`` above its goal, the horizontal command moved towards the drone's
-    horizontal velocity ``vel`` until the two differ by at most ``max(low_velocity_step, |relative|)`` (``relative``:
-    the velocity relative to the pad, so braking to the pad's velocity is always allowed); others unchanged."""
+    horizontal velocity ``vel`` until the two differ by at most ``max(allowed, |relative|)`` (``allowed``: the step,
+    m/s, a number or ``(..., 1)``; ``relative``: the velocity relative to the pad, so braking to the pad's velocity is
+    always allowed); others unchanged."""
     step = command[..., :2] - vel[..., :2]
     size = np.hypot(step[..., 0], step[..., 1])
-    bound = np.maximum(config.low_velocity_step, np.hypot(relative[..., 0], relative[..., 1]))
+    bound = np.maximum(allowed, np.hypot(relative[..., 0], relative[..., 1]))
     low = goal[..., 2] < config.cone_height
     scale = np.where(low, np.minimum(1.0, bound / np.maximum(size, _EPS)), 1.0)
     limited = command.copy()
@@ -523,7 +563,9 @@ def with_safety_filter(
     and sets ``L`` per env from it.
     With ``config.low_velocity_step`` > 0 the velocity-step limit compares commands with each drone's velocity in the
     world frame: eq. 2's ``v`` plus the pad velocity, or ``v`` itself on pads at rest. On pads that move
-    (``pads_move``) it therefore needs the pad velocities.
+    (``pads_move``) it therefore needs the pad velocities. With ``config.low_velocity_step_lag`` > 0 it identifies the
+    tracker as above (starting from ``low_velocity_step_lag`` unless ``identified_lag_share`` is set) and scales the
+    step per env (:meth:`SafetyFilterConfig.velocity_step`).
     With ``command_frame`` ``"pad"`` (``TaskConfig.command_frame``) an action is a velocity relative to the pad: the
     filter works on the world command, the action plus the pad velocity the command carries, and hands back the
     filtered command relative to the pad again. That velocity comes from ``carried_pad_velocity`` (no arguments ->
@@ -550,11 +592,12 @@ def with_safety_filter(
             "low_velocity_step=0."
         )
     lag = None
-    if config.identified_lag_share > 0:
+    if config.identified_lag_share > 0 or config.low_velocity_step_lag > 0:
         if not policy_dt or (pads_move and not knows_pad_velocity):
             raise ValueError(
-                "identified_lag_share > 0 needs the policy period (policy_dt) and, on moving pads, each pad's velocity "
-                f"(the tracker is identified from world-frame velocities): {how}. Or set identified_lag_share=0."
+                "identified_lag_share > 0 or low_velocity_step_lag > 0 needs the policy period (policy_dt) and, on "
+                "moving pads, each pad's velocity (the tracker is identified from world-frame velocities): "
+                f"{how}. Or set both to 0."
             )
         lag = tracker_lag or config.tracker_lag(policy_dt)
     lead = None
@@ -577,9 +620,13 @@ def with_safety_filter(
         elif pad_velocity is not None:
             pad_vel = np.asarray(pad_velocity(), dtype=float)
         latency: float | np.ndarray = config.latency_compensation
+        step = None
         if lag is not None:
             lags = lag.observe(per_drone[..., EQ2_POSITION], per_drone[..., EQ2_VELOCITY], pad_vel)
-            latency = np.minimum(config.identified_lag_share * lags, 0.5)[:, None, None]  # (E, 1, 1) s
+            if config.identified_lag_share > 0:
+                latency = np.minimum(config.identified_lag_share * lags, 0.5)[:, None, None]  # (E, 1, 1) s
+            if config.low_velocity_step_lag > 0:
+                step = np.asarray(config.velocity_step(lags))[:, None]  # (E, 1) m/s
         ahead = predict_observations(per_drone, latency).reshape(obs.shape)
         command = np.asarray(act(ahead), dtype=float).reshape(len(obs), num_drones, 3)
         accel = None if lead is None else lead.update(pad_vel, next(calls) * policy_dt)
@@ -587,7 +634,7 @@ def with_safety_filter(
         if command_frame == "pad":
             frame_offset = pad_vel if carried_pad_velocity is None else np.asarray(carried_pad_velocity(), dtype=float)
         actions, _ = filter_actions(
-            per_drone, command, offsets, max_speed, config, accel, pad_vel, latency, command_offset=frame_offset
+            per_drone, command, offsets, max_speed, config, accel, pad_vel, latency, frame_offset, step
         )
         if lag is not None:
             lag.commanded(actions * max_speed + (0.0 if frame_offset is None else frame_offset))
@@ -606,6 +653,7 @@ def filter_actions(
     pad_velocity: np.ndarray | None = None,
     latency: float | np.ndarray | None = None,
     command_offset: np.ndarray | None = None,
+    velocity_step: float | np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`filter_commands` on eq. 3 actions, with positions and velocities read from eq. 2 observations.
 
@@ -624,6 +672,8 @@ def filter_actions(
             per env, as ``config.identified_lag_share`` identifies it); None: ``config.latency_compensation``.
         command_offset: ``(..., N, 3)`` m/s added to ``actions * max_speed`` to make the world command, and taken off
             the filtered one: the pad velocities of a pad-frame policy (``TaskConfig.command_frame``); None: none.
+        velocity_step: the velocity-step limit's step (m/s), a number or ``(..., 1)`` per env
+            (:meth:`SafetyFilterConfig.velocity_step`); None: ``config.low_velocity_step``.
 
     Returns:
         ``(filtered, correction)``: actions ``(..., N, 3)`` in [-1, 1], and how far the filter moved each drone's
@@ -648,6 +698,7 @@ def filter_actions(
         max_speed=max_speed,
         pad_acceleration=pad_acceleration,
         pad_velocity=pad_velocity if world_frame else None,
+        velocity_step=velocity_step,
     )
     correction = np.linalg.norm(u - command, axis=-1)
     if command_offset is not None:
