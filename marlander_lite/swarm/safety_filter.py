@@ -209,9 +209,10 @@ class SafetyFilterConfig:
     before the first samples ``T`` is ``T_ref``) and the step becomes ``low_velocity_step * max(1, T / T_ref)``. A
     tracker of time constant ``T`` accelerates a drone at about ``(u - v) / T`` and so tilts it by about
     ``atan((u - v) / (g T))``: the same tilt allows a step ``T / T_ref`` times larger on a slower tracker, which needs
-    its command well ahead of its velocity. 0.5 m/s at 0.45 s (the held-out and firmware trackers' identified time
-    constants) kept the held-out tracker on its moving pads while a fixed 0.5 m/s cost PyFlyt's (0.9-1.1 s) and the
-    combined column's line 18-30 points (docs/transfer.md). Needs ``low_velocity_step`` > 0."""
+    its command well ahead of its velocity. With 0.5 m/s at 0.45 s (the held-out and firmware trackers' identified
+    time constants) ``moving-slow-trackers`` landed 89.0 / 92.5 % on the held-out tracker's moving rows (alone 83.5 /
+    74.0 %) and 90.0 / 89.5 % on the combined column's and PyFlyt 0.22's line, where a fixed 0.5 m/s step left 77.5 /
+    68.0 % (docs/transfer.md, "A velocity step that follows the tracker"). Needs ``low_velocity_step`` > 0."""
 
     def __post_init__(self) -> None:
         for f in fields(self):
