@@ -294,11 +294,12 @@ def test_the_deployment_loop_leads_the_pad_velocity_once_per_estimate():
         runner.carried_pad_velocity(bad)
 
 
-def test_the_lab_rehearsal_flies_the_shipped_pad_frame_policy_onto_a_shuttling_plate():
+@pytest.mark.parametrize("lead", [None, 0.3])
+def test_the_lab_rehearsal_flies_the_shipped_pad_frame_policy_onto_a_shuttling_plate(lead):
     """`marlander deploy --sim`'s loop with `moving-slow-trackers` (the lab's moving-pad settings, the plate shuttling
-    at 0.4 m/s, the firmware tracker): the runner reads the policy's frame and lead from its file, carries the pads'
-    tracked velocity, and both drones land on their pads (seed 0 of the campaign in
-    benchmarks/results/rehearsal_moving_slow_trackers_line_2026-11-30.txt)."""
+    at 0.4 m/s, the firmware tracker): the runner reads the policy's frame and lead from its file (or the lead from
+    the lab's ``limits.pad_frame_lead``), carries the pads' tracked velocity, and both drones land on their pads (seed 0
+    of the campaign in benchmarks/results/rehearsal_moving_slow_trackers_line_2026-11-30.txt)."""
     from marlander_lite.deploy.config import EXAMPLE_CONFIG, load_lab_config
     from marlander_lite.deploy.mission import Mission
     from marlander_lite.deploy.rehearsal import rehearse
@@ -308,7 +309,7 @@ def test_the_lab_rehearsal_flies_the_shipped_pad_frame_policy_onto_a_shuttling_p
     lab = lab.replace(
         simulation=dataclasses.replace(lab.simulation, platform="moving-linear", platform_speed=0.4),
         safety_filter=lab.safety_filter.with_settings(parse_settings("cone_radius=0.04,reaction_time=0.35")),
-        limits=dataclasses.replace(lab.limits, takeoff_height=1.4),
+        limits=dataclasses.replace(lab.limits, takeoff_height=1.4, pad_frame_lead=lead),
     )
     frames = []
 
@@ -318,9 +319,32 @@ def test_the_lab_rehearsal_flies_the_shipped_pad_frame_policy_onto_a_shuttling_p
     result = rehearse(
         lab, "data/policies/moving-slow-trackers.safetensors", simulator="crazyflie", seed=0, hooks=[record]
     )
-    assert set(frames) == {("pad", 0.5)}
+    assert set(frames) == {("pad", 0.5 if lead is None else lead)}
     assert result.mission.success and all(result.mission.on_pad), result.mission
     assert result.safe
+
+
+def test_the_lab_may_fly_another_lead_and_only_for_a_pad_frame_policy():
+    """``limits.pad_frame_lead`` replaces the file's lead of a pad-frame policy; it is refused, saying what to do,
+    for a world-frame policy, and out of [0, 2] s by the config loader."""
+    import yaml
+
+    from marlander_lite.deploy.config import EXAMPLE_CONFIG, ConfigError, LabConfig, load_lab_policy
+    from marlander_lite.policy_file import read_contract
+
+    example = yaml.safe_load(EXAMPLE_CONFIG.read_text())
+    moving = "data/policies/moving-slow-trackers.safetensors"
+    own = LabConfig.from_dict(example)
+    assert own.policy_options(read_contract(moving).interface_options())["pad_frame_lead"] == 0.5
+    example["limits"] = {**example.get("limits", {}), "pad_frame_lead": 0.3}
+    lab = LabConfig.from_dict(example)
+    assert lab.policy_options(read_contract(moving).interface_options())["pad_frame_lead"] == 0.3
+    assert load_lab_policy(moving, lab).contract.task["pad_frame_lead"] == 0.5  # the file itself is unchanged
+    with pytest.raises(PolicyFileError, match=r"limits.pad_frame_lead is 0.3 s, but this policy commands .* world"):
+        load_lab_policy("data/policies/quick-cpu-slow-trackers-20m.safetensors", lab)
+    example["limits"]["pad_frame_lead"] = 2.5
+    with pytest.raises(ConfigError, match=r"pad_frame_lead"):
+        LabConfig.from_dict(example)
 
 
 def test_every_evaluation_flies_a_pad_frame_policy_in_its_frame():

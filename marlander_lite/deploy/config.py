@@ -239,6 +239,21 @@ class LabConfig:
             pad_frame_lead=pad_frame_lead,
         )
 
+    def policy_options(self, options: dict[str, Any]) -> dict[str, Any]:
+        """A policy file's interface options (``PolicyContract.interface_options()``) with the lab's
+        ``limits.pad_frame_lead`` in place of the file's lead, when set; :class:`ConfigError` if it is set for a
+        policy whose commands are not relative to its pad."""
+        lead = self.limits.pad_frame_lead
+        if lead is None:
+            return dict(options)
+        if options.get("command_frame", "world") != "pad":
+            raise ConfigError(
+                f"limits.pad_frame_lead is {lead} s, but this policy commands velocities in the world frame, which "
+                "carry no pad velocity to lead; remove limits.pad_frame_lead, or fly a pad-frame policy (e.g. "
+                "data/policies/moving-slow-trackers.safetensors)."
+            )
+        return {**options, "pad_frame_lead": float(lead)}
+
     def with_drones(self, num_drones: int, geometry: PlateGeometry | None = None, body: str = "plate") -> LabConfig:
         """A copy flying ``num_drones`` drones ``cf1 ... cfN``, each on its own pad of ``geometry`` on body ``body``.
 
@@ -292,7 +307,10 @@ def load_lab_policy(path: str | Path, lab: LabConfig) -> MLPPolicy:
             f"{lab.num_drones} drones, or a shared policy (any number of drones, e.g. "
             "data/policies/shared-quick-local.safetensors)."
         )
-    task = lab.task_config(**contract.interface_options())
+    try:
+        task = lab.task_config(**lab.policy_options(contract.interface_options()))
+    except ConfigError as error:
+        raise PolicyFileError(f"{path}: {error}") from None
     return load_policy(path, task, shared=contract.is_shared)
 
 

@@ -93,7 +93,7 @@ class Mission(LandingControl):
         self.lab, self.source, self.link, self.clock, self.log = lab, source, link, clock, log
         self.hooks = list(hooks)
         contract = getattr(policy, "contract", None)
-        self.task = lab.task_config(**(contract.interface_options() if contract is not None else {}))
+        self.task = lab.task_config(**lab.policy_options(contract.interface_options() if contract is not None else {}))
         sf = lab.safety_filter
         self.runner = PolicyRunner(policy, self.task, lab.limits.max_speed, sf.filter_config() if sf.enabled else None)
         self.estimator = SwarmEstimator(lab, estimator, landed_height=self.task.landed_height)
