@@ -48,6 +48,7 @@ from marlander_lite.task import (
     ACT_PER_DRONE,
     COMMAND_FRAMES,
     MAX_OBSERVATION_HISTORY,
+    MAX_PAD_FRAME_LEAD,
     OBS_LIMITS,
     OBS_PER_DRONE,
     OBSERVATION_OPTIONS,
@@ -189,8 +190,10 @@ class PolicyContract:
         if frame not in COMMAND_FRAMES:
             raise PolicyFileError(f"task.command_frame must be one of {', '.join(COMMAND_FRAMES)}, got {frame!r}")
         lead = self.task.get("pad_frame_lead", 0.0)
-        if isinstance(lead, bool) or not isinstance(lead, int | float) or not 0.0 <= lead <= 2.0:
-            raise PolicyFileError(f"task.pad_frame_lead must be a number from 0 to 2 (s), got {lead!r}")
+        if isinstance(lead, bool) or not isinstance(lead, int | float) or not 0.0 <= lead <= MAX_PAD_FRAME_LEAD:
+            raise PolicyFileError(
+                f"task.pad_frame_lead must be a number from 0 to {MAX_PAD_FRAME_LEAD:g} (s), got {lead!r}"
+            )
         return {**self.observation_options(), "command_frame": frame, "pad_frame_lead": float(lead)}
 
     def check_observation(self) -> None:

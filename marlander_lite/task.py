@@ -52,6 +52,9 @@ COMMAND_FRAMES: tuple[str, ...] = ("world", "pad")
 """The frames eq. 3's velocity command may be read in (``TaskConfig.command_frame``): the paper's world frame, or
 relative to the drone's pad."""
 
+MAX_PAD_FRAME_LEAD = 2.0
+"""The longest ``TaskConfig.pad_frame_lead`` (s) a task, a policy file, the transfer matrix or a lab config takes."""
+
 MAX_OBSERVATION_HISTORY = 8
 """The most frames ``TaskConfig.observation_history`` may stack."""
 
@@ -267,8 +270,9 @@ class TaskConfig:
                 f"command_frame must be one of {', '.join(COMMAND_FRAMES)}",
             ),
             (
-                0.0 <= self.pad_frame_lead <= 2.0 and (self.pad_frame_lead == 0.0 or self.command_frame == "pad"),
-                "pad_frame_lead must be from 0 to 2 s, and above 0 only with command_frame='pad'",
+                0.0 <= self.pad_frame_lead <= MAX_PAD_FRAME_LEAD
+                and (self.pad_frame_lead == 0.0 or self.command_frame == "pad"),
+                f"pad_frame_lead must be from 0 to {MAX_PAD_FRAME_LEAD:g} s, and above 0 only with command_frame='pad'",
             ),
             (
                 self.pad_assignment in PAD_ASSIGNMENTS,

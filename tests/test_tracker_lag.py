@@ -49,6 +49,13 @@ class FirstOrderTracker:
         self.v = v
 
 
+class Still:
+    """A centralised two-drone policy that commands nothing: the runner tests set the setpoints themselves."""
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        return np.zeros((1, 6))
+
+
 def random_commands(rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
     command = rng.uniform(-1.0, 1.0, shape)
     command[..., 2] = 0.0
@@ -187,10 +194,6 @@ def test_the_runner_sets_its_latency_compensation_from_the_setpoints_it_sent() -
     step of two policy periods (a pause) gives no sample."""
     config = SafetyFilterConfig(latency_compensation=0.12, identified_lag_share=0.5)
 
-    class Still:
-        def act(self, obs: np.ndarray) -> np.ndarray:
-            return np.zeros((1, 6))
-
     runner = PolicyRunner(Still(), TaskConfig(num_drones=2), 1.0, config)
     plant, rng = FirstOrderTracker([0.6]), np.random.default_rng(2)
     goals = np.zeros((2, 3))
@@ -303,10 +306,6 @@ def test_the_runner_scales_its_velocity_step_by_the_tracker_it_identified() -> N
     """The deployment runner identifies a 0.9 s tracker from the setpoints it sent (10 s of random ones) and grows the
     step from 0.5 to about 1.0 m/s; a drone low over its pad, at rest and told 2 m/s, is then sent about 1.0 m/s."""
     config = SafetyFilterConfig(low_velocity_step=0.5, low_velocity_step_lag=0.45, centring_gain=0.0)
-
-    class Still:
-        def act(self, obs: np.ndarray) -> np.ndarray:
-            return np.zeros((1, 6))
 
     runner = PolicyRunner(Still(), TaskConfig(num_drones=2), 3.0, config)
     plant, rng = FirstOrderTracker([0.9]), np.random.default_rng(4)

@@ -33,6 +33,7 @@ from marlander_lite.deploy.schema import (
 from marlander_lite.platforms import MAX_INCLINATION_DEG, PLATFORM_KINDS, PlatformKind
 from marlander_lite.simulators import SIMULATORS, SimulatorName
 from marlander_lite.swarm.safety_filter import SafetyFilterConfig
+from marlander_lite.task import MAX_PAD_FRAME_LEAD
 
 MocapKind = Literal["vicon", "optitrack", "qualisys", "vrpn", "mock"]
 MOCAP_KINDS: tuple[str, ...] = get_args(MocapKind)
@@ -175,7 +176,7 @@ class LimitsConfig:
     """How long a drone must linger above its pad before the hand-over (s)."""
     max_flight_s: Annotated[Real, Field(ge=1, le=600)] = 60.0
     """After this long under the policy, every drone still flying is landed (s)."""
-    pad_frame_lead: Annotated[Real, Field(ge=0, le=2)] | None = None
+    pad_frame_lead: Annotated[Real, Field(ge=0, le=MAX_PAD_FRAME_LEAD)] | None = None
     """Only for a policy whose commands are relative to its pad (``TaskConfig.command_frame`` ``"pad"``): how far ahead
     (s) the pad velocity its commands carry is led by the pad's acceleration, instead of the lead in the policy file;
     None: the file's. A tracker that answers at once wants less lead than a slow one: flown with 0.3 s instead of its

@@ -433,8 +433,10 @@ class TransferConfig:
             find_row(name)
         if self.safety_filter is not None:
             SafetyFilterConfig.from_dict(self.safety_filter)  # unknown or invalid settings fail before any flight
-        if self.pad_frame_lead is not None and not 0.0 <= self.pad_frame_lead <= 2.0:
-            raise ValueError(f"--pad-frame-lead must be from 0 to 2 s, got {self.pad_frame_lead!r}.")
+        if self.pad_frame_lead is not None and not 0.0 <= self.pad_frame_lead <= task.MAX_PAD_FRAME_LEAD:
+            raise ValueError(
+                f"--pad-frame-lead must be from 0 to {task.MAX_PAD_FRAME_LEAD:g} s, got {self.pad_frame_lead!r}."
+            )
         if self.command_frame is not None and self.command_frame not in task.COMMAND_FRAMES:
             raise ValueError(
                 f"--command-frame must be one of {', '.join(task.COMMAND_FRAMES)}, got {self.command_frame!r}."
