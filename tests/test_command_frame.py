@@ -294,12 +294,16 @@ def test_the_deployment_loop_leads_the_pad_velocity_once_per_estimate():
         runner.carried_pad_velocity(bad)
 
 
-@pytest.mark.parametrize("lead", [None, 0.3])
-def test_the_lab_rehearsal_flies_the_shipped_pad_frame_policy_onto_a_shuttling_plate(lead):
+CLIMB = ",low_velocity_step=0.5,low_velocity_step_lag=0.45,approach_climb=1"  # the tracker-step settings, climbing
+
+
+@pytest.mark.parametrize(("lead", "more_settings"), [(None, ""), (0.3, ""), (None, CLIMB)])
+def test_the_lab_rehearsal_flies_the_shipped_pad_frame_policy_onto_a_shuttling_plate(lead, more_settings):
     """`marlander deploy --sim`'s loop with `moving-slow-trackers` (the lab's moving-pad settings, the plate shuttling
     at 0.4 m/s, the firmware tracker): the runner reads the policy's frame and lead from its file (or the lead from
     the lab's ``limits.pad_frame_lead``), carries the pads' tracked velocity, and both drones land on their pads (seed 0
-    of the campaign in benchmarks/results/rehearsal_moving_slow_trackers_line_2026-11-30.txt)."""
+    of the campaign in benchmarks/results/rehearsal_moving_slow_trackers_line_2026-11-30.txt), also through the
+    velocity step that follows the tracker and the approach guard's climb."""
     from marlander_lite.deploy.config import EXAMPLE_CONFIG, load_lab_config
     from marlander_lite.deploy.mission import Mission
     from marlander_lite.deploy.rehearsal import rehearse
@@ -308,7 +312,9 @@ def test_the_lab_rehearsal_flies_the_shipped_pad_frame_policy_onto_a_shuttling_p
     lab = load_lab_config(EXAMPLE_CONFIG)
     lab = lab.replace(
         simulation=dataclasses.replace(lab.simulation, platform="moving-linear", platform_speed=0.4),
-        safety_filter=lab.safety_filter.with_settings(parse_settings("cone_radius=0.04,reaction_time=0.35")),
+        safety_filter=lab.safety_filter.with_settings(
+            parse_settings("cone_radius=0.04,reaction_time=0.35" + more_settings)
+        ),
         limits=dataclasses.replace(lab.limits, takeoff_height=1.4, pad_frame_lead=lead),
     )
     frames = []

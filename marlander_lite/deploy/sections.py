@@ -304,6 +304,11 @@ class SafetyFilterSection:
     cone_radius: Annotated[Real, Field(ge=0, le=0.1)] = _FILTER_DEFAULTS.cone_radius
     """Approach guard: within this horizontal distance of its pad centre (m) a drone may descend all the way. On a
     moving pad the drone trails its pad by a few centimetres; 0.04 lifted moving-pad landings (docs/transfer.md)."""
+    approach_climb: Annotated[Real, Field(ge=0, le=2)] = _FILTER_DEFAULTS.approach_climb
+    """Approach guard: a drone below its surface (low beside its pad) is pushed back up at this share of ``gain`` per
+    metre below it, instead of only having its descent stopped; 0: off. 1 for a slow tracker on moving pads, where a
+    drone trailing its pad low over the plate sank on and touched down beside its pad (docs/transfer.md, "Climbing back
+    instead of touching down beside the pad")."""
     centring_gain: Annotated[Real, Field(ge=0, le=10)] = _FILTER_DEFAULTS.centring_gain
     """Centring (1/s): over its pad and below 0.3 m, a drone's horizontal command gains this times its offset from
     the pad centre, so that a policy hovering off-centre still lands on the centre; 0: no centring."""

@@ -174,13 +174,25 @@ def actor_factory(
     num_envs: int,
     policy_path: str | Path | None = None,
     filter_settings: dict[str, float] | None = None,
+    episodes: LandingEpisodes | None = None,
 ) -> Callable[[np.ndarray | None], BatchAct]:
     """A :func:`fly_trials` actor builder for ``controller`` (one of :data:`SCALING_CONTROLLERS`) on ``task``.
 
     ``filter_settings``: changes to :class:`SafetyFilterConfig`'s defaults for the ``*-filter`` controllers.
+    ``episodes``: the swarm the actor flies, if the ``*-filter`` controllers may read each pad's velocity from its
+    state (as the deployment loop reads it from motion capture) and, for a pad-frame policy, the pad velocity its
+    commands carry; without it they refuse the rules that need these on moving pads.
     """
     guard = SafetyFilterConfig.from_dict(filter_settings or {})
     offsets = platform.geometry.pad_offsets(task.num_drones)
+    pad_velocity = carried = None
+    if episodes is not None:
+        sim = episodes.sim
+
+        def pad_velocity() -> np.ndarray:  # the simulator's; in the lab, motion capture's
+            return sim.state().pad_vel
+
+        carried = episodes.carried_pad_velocity if task.command_frame == "pad" else None
 
     def filtered(act: BatchAct) -> BatchAct:
         return with_safety_filter(
@@ -193,6 +205,8 @@ def actor_factory(
             observes_pad_velocity=task.observe_platform_velocity,
             pads_move=platform.is_moving,
             command_frame=task.command_frame,
+            pad_velocity=pad_velocity,
+            carried_pad_velocity=carried,
         )
 
     if controller == "shared":
@@ -264,7 +278,9 @@ def evaluate_cell(
         num_drones, num_envs, seed, simulator, platform, task_changes=task_changes, **(simulator_options or {})
     )
     try:
-        make_actor = actor_factory(controller, episodes.task, platform, num_envs, policy_path, filter_settings)
+        make_actor = actor_factory(
+            controller, episodes.task, platform, num_envs, policy_path, filter_settings, episodes
+        )
         results = fly_trials(episodes, make_actor, trials)
     finally:
         episodes.sim.close()

@@ -39,9 +39,10 @@ aid ``command_speed_penalty`` asks the same of the policy; here it is enforced).
 **Approach guard.** A drone may not descend below ``min(slope (r - r_0), h_max)`` above its goal, ``r`` its
 horizontal distance from it: it comes down over its pad, not beside it (issue "Policies that transfer"
 asks for >= 0.3 m of height 0.5 m from the pad; clutter, ground effect and other pads do not forgive a
-low approach). Below that surface its descent is braked at rate ``gamma``; it is never pushed up. With
-``r_0`` = 5 mm the surface is almost a cone whose tip is the goal: the drone centres itself over its pad
-as it comes down.
+low approach). Below that surface its descent is braked at rate ``gamma``; by default it is never pushed up, and with
+``approach_climb`` ``c`` it climbs back at ``c gamma`` per metre below the surface (a drone trailing its pad low over
+the plate, on a slow tracker). With ``r_0`` = 5 mm the surface is almost a cone whose tip is the goal: the drone
+centres itself over its pad as it comes down.
 
 **Pad lead** (``pad_lead``, off by default). On a moving pad every command first gains ``T_lead`` times the pad's
 acceleration, estimated from the pad velocities the loop observes (:class:`PadAcceleration`): a velocity tracker
@@ -158,6 +159,16 @@ class SafetyFilterConfig:
     (docs/scaling.md)."""
     cone_height: float = 0.3
     """``h_max`` of the approach guard (m)."""
+    approach_climb: float = 0.0
+    """``c`` of the approach guard, 0 = off (the default; every filtered result shipped before 2026-11-30 was flown
+    without it): a drone below the guard's surface ``s`` is not only kept from descending but pushed up at
+    ``c gamma (s - h)``. A tracker that answers in about a second leaves its drone trailing a pad that reverses, a few
+    centimetres over the plate beside the pad, and its descent carries on after the guard has stopped it; it then
+    touches down beside its pad. With 1 it climbs back onto the surface and tries again: ``moving-slow-trackers``
+    through the tracker-step settings touched down beside its pad in 26 of the transfer matrix's 4800 moving episodes
+    instead of 112 (PyFlyt's columns: 2 instead of 79), while time-outs rose from 61 to 146, most on the combined
+    column's and PyFlyt's 0.21.0-order line (docs/transfer.md, "Climbing back instead of touching down beside the
+    pad")."""
     centring_gain: float = 2.0
     """``k_c`` of the centring rule (1/s): over its pad (within the pad radius) and below ``h_max``, a drone's
     horizontal command gains ``-k_c`` times its horizontal offset from the goal; 0: no centring."""
@@ -523,7 +534,9 @@ def _lowest_vertical_command(goal: np.ndarray, config: SafetyFilterConfig) -> np
     if config.cone_slope > 0:
         radius = np.hypot(goal[..., 0], goal[..., 1])
         surface = np.minimum(config.cone_slope * np.maximum(radius - config.cone_radius, 0.0), config.cone_height)
-        lowest = np.maximum(lowest, np.minimum(-config.gain * (height - surface), 0.0))
+        # below the surface the drone's descent is braked; with approach_climb it is also pushed back up
+        floor = config.gain * (surface - height)
+        lowest = np.maximum(lowest, np.where(floor > 0, config.approach_climb * floor, floor))
     return lowest
 
 
