@@ -741,10 +741,9 @@ def check_08(shown: Shown) -> None:
     climbs = dict(shown.numbers(r"^approach_climb (\S+): vertical command (\S+) m/s$"))
     assert climbs == pytest.approx({0.0: 0.0, 1.0: 0.16}, abs=0.005), climbs
     for name in (
-        "moving-slow-trackers-tracker-step-filter",
-        "moving-slow-trackers-climb-filter",
-        "paper-moving-slow-trackers-tracker-step-filter",
-        "paper-moving-slow-trackers-climb-filter",
+        f"{policy}-{setting}"
+        for policy in ("moving-slow-trackers", "paper-moving-slow-trackers")
+        for setting in ("tracker-step-filter", "climb-filter", "wide-climb-filter")
     ):
         cells = [c for c in transfer_csv(name) if c["row"].startswith(("arc", "line"))]
         counts = r"(\d+) of (\d+) moving cells at 90 % or more; (\d+) touchdowns beside the pad and (\d+) time-outs"
@@ -752,6 +751,20 @@ def check_08(shown: Shown) -> None:
         assert count == len(cells) == 24 and at_90 == sum(float(c["success_rate"]) >= 0.9 for c in cells), name
         assert beside_pad == sum(int(c["crashes_off_pad"]) for c in cells), name
         assert timeouts == sum(int(c["timeouts"]) for c in cells), name
+    static = transfer_csv("moving-slow-trackers-wide-climb-filter-static")
+    pattern = r"^moving-slow-trackers-wide-climb-filter-static: worst (\S+) % \(.+\), largest landing error (\S+) cm$"
+    [(worst, widest)] = shown.numbers(pattern)
+    assert close(worst, 100 * min(float(c["success_rate"]) for c in static), 0.051)
+    assert close(widest, max(float(c["landing_error_cm"]) for c in static), 0.0051)
+    long = transfer_csv("moving-slow-trackers-wide-climb-filter-30s")
+    pattern = (
+        r"^moving-slow-trackers-wide-climb-filter-30s: (\d+) of (\d+) moving cells at 90 % or more; worst (\S+) % "
+        r"\(.+\); largest landing error (\S+) cm$"
+    )
+    [(at_90, count, worst, widest)] = shown.numbers(pattern)
+    assert count == len(long) == 24 and at_90 == sum(float(c["success_rate"]) >= 0.9 for c in long)
+    assert close(worst, 100 * min(float(c["success_rate"]) for c in long), 0.051)
+    assert close(widest, max(float(c["landing_error_cm"]) for c in long), 0.0051)
     # step responses (with and without RotorPy, and with PyFlyt), transfer bars, the pad's acceleration, the late
     # descent, the swing, the steeper cone's landing errors, PyFlyt held still, the opening family, the integrator,
     # the landing errors of 12 and 20 M steps in PyFlyt 0.22, the two networks on the same recipe, moving pads in the

@@ -151,6 +151,10 @@ def test_approach_climb_pushes_a_drone_below_the_surface_back_up() -> None:
         config = SafetyFilterConfig(cone_radius=0.04, approach_climb=climb)
         out, _ = filter_commands(high, np.zeros((1, 3)), command, config, rel_goal=high)
         assert out[0, 2] == pytest.approx(-0.16), climb
+    # Far from its pad the surface is h_max = 0.3 m: a drone 1 m away at 0.1 m climbs at 4 * (0.3 - 0.1) = 0.8 m/s.
+    far = np.array([[1.0, 0.0, 0.1]])
+    out, _ = filter_commands(far, np.zeros((1, 3)), command, SafetyFilterConfig(approach_climb=1.0), rel_goal=far)
+    assert out[0, 2] == pytest.approx(0.8)
     # A drone settled on its pad keeps its own command: the rule does not lift a landed drone.
     settled = np.array([[0.02, 0.0, 0.005]])
     config = SafetyFilterConfig(cone_radius=0.0, approach_climb=1.0)

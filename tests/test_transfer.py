@@ -337,6 +337,18 @@ def test_a_cell_reports_the_tracker_lag_its_filter_identified(tmp_path) -> None:
     assert "identified lag" not in transfer.format_flight_table(transfer.read_results(tmp_path / "transfer.json")[:0])
 
 
+def test_episode_seconds_sets_each_episodes_time_limit(tmp_path) -> None:
+    """``--episode-seconds`` replaces the training episode's 10 s: in 2 s no drone reaches its pad from the paper's
+    starts, 1-3 m away, and every episode times out; the matrix's files say so."""
+    cut_short = transfer.fly_cell(POLICY, "point mass", "floor", 3, 0, "vicon", episode_seconds=2.0)
+    assert cut_short.timeouts == 3 and cut_short.successes == 0
+    assert transfer.fly_cell(POLICY, "point mass", "floor", 3, 0, "vicon").successes >= 2
+    config = transfer.TransferConfig(policy=POLICY, episodes=3, episode_seconds=2.0)
+    transfer.write_results(config, [cut_short], tmp_path, wall_s=1.0)
+    assert json.loads((tmp_path / "transfer.json").read_text())["config"]["episode_seconds"] == 2.0
+    assert "episodes of 2 s (trained with 10 s)" in (tmp_path / "transfer.md").read_text()
+
+
 def test_a_matrix_written_before_failures_were_counted_still_reads(tmp_path) -> None:
     old = json.loads(open("data/results/transfer/quick-cpu/transfer.json").read())
     for cell in old["cells"]:
@@ -355,6 +367,7 @@ def test_a_matrix_written_before_failures_were_counted_still_reads(tmp_path) -> 
         (["--columns", "PyBullet warp"], "unknown column"),
         (["--rows", "ceiling"], "unknown row"),
         (["--episodes", "0"], "--episodes"),
+        (["--episode-seconds", "0.5"], "--episode-seconds must be from 1 to 120 s"),
         (["--safety-filter", "cone_radiu=0.04"], "Unknown safety filter option(s) ['cone_radiu']"),
         (["--safety-filter", "cone_radius=wide"], "is not KEY=NUMBER"),
         (["--safety-filter", "gain=-1"], "must be a finite number >= 0"),

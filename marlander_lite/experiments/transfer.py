@@ -189,6 +189,9 @@ def find_row(name: str) -> Row:
     raise ValueError(f"Unknown transfer row {name!r}; allowed: {', '.join(r.name for r in ROWS)}.")
 
 
+MAX_EPISODE_SECONDS = 120.0
+"""Longest episode (s) ``TransferConfig.episode_seconds`` allows: four times the paper protocol's 30 s."""
+
 SHARED_SWARM_SIZE = 2
 """Drones a shared policy flies in the matrix unless told otherwise: the paper's two."""
 
@@ -201,6 +204,7 @@ def build_episodes(
     num_drones: int | None = None,
     command_frame: str | None = None,
     pad_frame_lead: float | None = None,
+    episode_seconds: float | None = None,
 ) -> LandingEpisodes:
     """One swarm of ``column``'s simulator on ``row``'s platform, with the policy's task and no training aid.
 
@@ -211,6 +215,8 @@ def build_episodes(
         task_fields["command_frame"] = command_frame
     if pad_frame_lead is not None:
         task_fields["pad_frame_lead"] = pad_frame_lead
+    if episode_seconds is not None:  # a longer flight than the training episode (TransferConfig.episode_seconds)
+        task_fields["episode_seconds"] = episode_seconds
     if policy.contract.is_shared:
         task_fields.pop("spawn_separation", None)
     options = dict(
@@ -237,19 +243,21 @@ def fly_cell(
     num_drones: int | None = None,
     command_frame: str | None = None,
     pad_frame_lead: float | None = None,
+    episode_seconds: float | None = None,
 ) -> CellResult:
     """Fly ``episodes`` episodes of one cell (runs in a worker process). ``safety_filter``: None, or the settings
     (changes to :class:`SafetyFilterConfig`'s defaults, ``{}`` for none) of the deployment's safety filter
     (:mod:`marlander_lite.swarm.safety_filter`), which then changes every command before it is flown. ``column``
     is a column's name or a :class:`Column` (a simulator setting none of the named columns is). ``num_drones``:
     the swarm size a shared policy flies (a centralised one flies its own). ``command_frame``: None (the policy's
-    own) or the frame its commands are flown in (``TaskConfig.command_frame``), ``pad_frame_lead`` None or its lead (s).
+    own) or the frame its commands are flown in (``TaskConfig.command_frame``), ``pad_frame_lead`` None or its lead (s),
+    ``episode_seconds`` None (the policy's training episode) or each episode's time limit (s).
     """
     started = time.perf_counter()
     policy = load_policy(policy_path)
     column = column if isinstance(column, Column) else find_column(column)
     row = find_row(row_name)
-    world = build_episodes(policy, column, row, sensing, num_drones, command_frame, pad_frame_lead)
+    world = build_episodes(policy, column, row, sensing, num_drones, command_frame, pad_frame_lead, episode_seconds)
     cfg = world.task
     lag = tracker_lag(safety_filter, world.task)
     act = cell_actor(policy, world, safety_filter, lag)
@@ -415,6 +423,10 @@ class TransferConfig:
     pad_frame_lead: float | None = None
     """None: the policy's own ``TaskConfig.pad_frame_lead``. A number of seconds: the lead on the pads' acceleration
     of a pad-frame command, flown instead."""
+    episode_seconds: float | None = None
+    """None: each episode lasts as long as the policy's training episodes (``TaskConfig.episode_seconds``, 10 s for
+    every shipped policy). A number of seconds: that time limit instead, e.g. the paper protocol's 30 s
+    (``marlander reproduce --time-limit``), for a tracker so slow that its drones land but take longer."""
 
     def __post_init__(self) -> None:
         if isinstance(self.episodes, bool) or not isinstance(self.episodes, int) or self.episodes < 1:
@@ -437,6 +449,9 @@ class TransferConfig:
             raise ValueError(
                 f"--pad-frame-lead must be from 0 to {task.MAX_PAD_FRAME_LEAD:g} s, got {self.pad_frame_lead!r}."
             )
+        seconds = self.episode_seconds
+        if seconds is not None and (isinstance(seconds, bool) or not 1.0 <= seconds <= MAX_EPISODE_SECONDS):
+            raise ValueError(f"--episode-seconds must be from 1 to {MAX_EPISODE_SECONDS:g} s, got {seconds!r}.")
         if self.command_frame is not None and self.command_frame not in task.COMMAND_FRAMES:
             raise ValueError(
                 f"--command-frame must be one of {', '.join(task.COMMAND_FRAMES)}, got {self.command_frame!r}."
@@ -475,6 +490,7 @@ def transfer_matrix(config: TransferConfig) -> list[CellResult]:
             n,
             config.command_frame,
             config.pad_frame_lead,
+            config.episode_seconds,
         )
         for c, r in cells
     ]
@@ -554,6 +570,9 @@ def write_results(config: TransferConfig, results: list[CellResult], out: Path, 
         )
     if config.pad_frame_lead not in (None, trained["pad_frame_lead"]):
         swarm += f"a pad lead of {config.pad_frame_lead:g} s (trained with {trained['pad_frame_lead']:g} s), "
+    if config.episode_seconds is not None:
+        trained_seconds = contract.task.get("episode_seconds", task.TaskConfig().episode_seconds)
+        swarm += f"episodes of {config.episode_seconds:g} s (trained with {trained_seconds:g} s), "
     md_path.write_text(
         f"Transfer matrix of `{config.policy}` ({swarm}{config.episodes} episodes a cell, seed {config.seed}, "
         f"sensing {config.sensing}{_filter_words(config.safety_filter)}): success % [95 % Wilson] / mean landing "

@@ -93,6 +93,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="with the pad frame, lead the pad velocity a command carries by S seconds of the pad's acceleration "
         "(TaskConfig.pad_frame_lead; default: the policy's own)",
     )
+    p.add_argument(
+        "--episode-seconds",
+        type=float,
+        default=None,
+        metavar="S",
+        help="each episode's time limit (default: the policy's training episode, 10 s; the paper protocol's is 30 s)",
+    )
     p.add_argument("--out", type=Path, help="results folder (default runs/transfer-<policy name>)")
     p.add_argument("--force", action="store_true", help="overwrite transfer.* files already in --out")
     p.set_defaults(func=run)
@@ -121,6 +128,7 @@ def run(args: argparse.Namespace) -> int:
         num_drones=args.num_drones,
         command_frame=args.command_frame,
         pad_frame_lead=args.pad_frame_lead,
+        episode_seconds=args.episode_seconds,
     )
     out = args.out or Path("runs") / f"transfer-{args.policy.stem}"
     existing = [out / name for name in OUTPUT_NAMES if (out / name).exists()]
