@@ -338,8 +338,8 @@ def test_a_cell_reports_the_tracker_lag_its_filter_identified(tmp_path) -> None:
 
 
 def test_episode_seconds_sets_each_episodes_time_limit(tmp_path) -> None:
-    """``--episode-seconds`` replaces the training episode's 10 s: in 2 s no drone reaches its pad from the paper's
-    starts, 1-3 m away, and every episode times out; the matrix's files say so."""
+    """``--episode-seconds`` replaces the training episode's 10 s: in 2 s no swarm lands from the paper's random starts
+    and every episode times out, while in 10 s they land; the matrix's files say so."""
     cut_short = transfer.fly_cell(POLICY, "point mass", "floor", 3, 0, "vicon", episode_seconds=2.0)
     assert cut_short.timeouts == 3 and cut_short.successes == 0
     assert transfer.fly_cell(POLICY, "point mass", "floor", 3, 0, "vicon").successes >= 2
