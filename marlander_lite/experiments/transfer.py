@@ -57,7 +57,7 @@ from marlander_lite.policy_file import MLPPolicy, load_policy
 from marlander_lite.rotations import tilt_deg
 from marlander_lite.simulators import simulator_entry
 from marlander_lite.swarm.policy import SharedPolicy
-from marlander_lite.swarm.safety_filter import SafetyFilterConfig, with_safety_filter
+from marlander_lite.swarm.safety_filter import SafetyFilterConfig, with_safety_filter_on
 from marlander_lite.swarm.tracker_lag import TrackerLag
 
 NEAR_PAD = 0.5
@@ -361,23 +361,7 @@ def cell_actor(
 
     if safety_filter is None:
         return act
-    n = world.task.num_drones
-    offsets = world.sim.platform.geometry.pad_offsets(n)
-    config, task_config = SafetyFilterConfig.from_dict(safety_filter), world.task
-    return with_safety_filter(
-        act,
-        n,
-        offsets,
-        task_config.max_speed,
-        config,
-        policy_dt=task_config.dt,
-        observes_pad_velocity=task_config.observe_platform_velocity,
-        pads_move=world.sim.platform.is_moving,
-        tracker_lag=lag,
-        command_frame=task_config.command_frame,
-        pad_velocity=lambda: world.sim.state().pad_vel,  # motion capture's, in the lab
-        carried_pad_velocity=world.carried_pad_velocity if task_config.command_frame == "pad" else None,
-    )
+    return with_safety_filter_on(act, world, SafetyFilterConfig.from_dict(safety_filter), lag)
 
 
 FAILURES = ("collisions", "crashes_too_fast", "crashes_off_pad", "out_of_arena", "timeouts")

@@ -47,7 +47,13 @@ from marlander_lite.policy_file import load_policy, read_contract
 from marlander_lite.sensing import SensingConfig
 from marlander_lite.simulators import SIMULATORS, simulator_entry
 from marlander_lite.swarm.policy import SharedPolicy
-from marlander_lite.swarm.safety_filter import BatchAct, SafetyFilterConfig, parse_settings, with_safety_filter
+from marlander_lite.swarm.safety_filter import (
+    BatchAct,
+    SafetyFilterConfig,
+    parse_settings,
+    with_safety_filter,
+    with_safety_filter_on,
+)
 from marlander_lite.task import TaskConfig
 
 SCALING_CONTROLLERS = ("shared", "shared-apf", "shared-filter", "centralised", "centralised-filter", "baseline")
@@ -185,16 +191,10 @@ def actor_factory(
     """
     guard = SafetyFilterConfig.from_dict(filter_settings or {})
     offsets = platform.geometry.pad_offsets(task.num_drones)
-    pad_velocity = carried = None
-    if episodes is not None:
-        sim = episodes.sim
-
-        def pad_velocity() -> np.ndarray:  # the simulator's; in the lab, motion capture's
-            return sim.state().pad_vel
-
-        carried = episodes.carried_pad_velocity if task.command_frame == "pad" else None
 
     def filtered(act: BatchAct) -> BatchAct:
+        if episodes is not None:
+            return with_safety_filter_on(act, episodes, guard)
         return with_safety_filter(
             act,
             task.num_drones,
@@ -205,8 +205,6 @@ def actor_factory(
             observes_pad_velocity=task.observe_platform_velocity,
             pads_move=platform.is_moving,
             command_frame=task.command_frame,
-            pad_velocity=pad_velocity,
-            carried_pad_velocity=carried,
         )
 
     if controller == "shared":

@@ -85,7 +85,7 @@ from __future__ import annotations
 import itertools
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, fields
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -93,6 +93,9 @@ from marlander_lite.platforms import PlateGeometry
 from marlander_lite.swarm.pad_acceleration import PadAcceleration
 from marlander_lite.swarm.tracker_lag import TIME_CONSTANT_RANGE, TrackerLag
 from marlander_lite.task import EQ2_POSITION, EQ2_VELOCITY, PLATFORM_VELOCITY
+
+if TYPE_CHECKING:
+    from marlander_lite.episodes import LandingEpisodes
 
 _EPS = 1e-9
 PAD_RADIUS = PlateGeometry().pad_radius
@@ -657,6 +660,38 @@ def with_safety_filter(
         return actions.reshape(len(obs), 3 * num_drones)
 
     return filtered
+
+
+def with_safety_filter_on(
+    act: BatchAct,
+    episodes: LandingEpisodes,
+    config: SafetyFilterConfig | None = None,
+    tracker_lag: TrackerLag | None = None,
+) -> BatchAct:
+    """:func:`with_safety_filter` for an actor flying ``episodes``, the way the deployment loop filters its commands:
+    the swarm size, speed, period, observations and command frame are the episodes' task's, the pad offsets and
+    motion its plate's, and each pad's velocity comes from the simulator's state (motion capture's, in the lab), with
+    what a pad-frame command carries (:meth:`~marlander_lite.episodes.LandingEpisodes.carried_pad_velocity`)."""
+    task, sim = episodes.task, episodes.sim
+    n = task.num_drones
+
+    def pad_velocity() -> np.ndarray:
+        return sim.state().pad_vel
+
+    return with_safety_filter(
+        act,
+        n,
+        sim.platform.geometry.pad_offsets(n),
+        task.max_speed,
+        config,
+        policy_dt=task.dt,
+        observes_pad_velocity=task.observe_platform_velocity,
+        pads_move=sim.platform.is_moving,
+        tracker_lag=tracker_lag,
+        command_frame=task.command_frame,
+        pad_velocity=pad_velocity,
+        carried_pad_velocity=episodes.carried_pad_velocity if task.command_frame == "pad" else None,
+    )
 
 
 def filter_actions(
