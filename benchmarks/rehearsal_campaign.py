@@ -78,7 +78,10 @@ def main(argv: list[str] | None = None) -> None:
         "--pad-assignment", default=None, choices=PAD_ASSIGNMENTS, help="pad_assignment instead of the config's"
     )
     parser.add_argument(
-        "--filter-settings", default="", metavar="KEY=VALUE,...", help="safety_filter keys instead of the config's"
+        "--filter-settings",
+        default="",
+        metavar="KEY=VALUE,...",
+        help="safety_filter keys instead of the config's (or a named set: moving-pads, pad-frame)",
     )
     args = parser.parse_args(argv)
     if args.mocap_latency is not None and not 0.0 <= args.mocap_latency <= 1.0:

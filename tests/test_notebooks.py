@@ -969,6 +969,24 @@ def check_09(shown: Shown) -> None:
     )
     assert point_mass["centralised-filter"] >= 80.0 > point_mass["centralised"], point_mass
     assert firmware["centralised-filter"] < firmware["centralised"] < 80.0, firmware
+    # Through the filter's pad-frame settings (the climb and the 6 cm cone tip as well) the firmware tracker's crashes
+    # at 1.0 m/s give way, and with the latency compensation identified in flight it meets the 80 % aim there too.
+    wide = {
+        stem: {
+            row["controller"]: first_number(row["success % [95 % CI]"])
+            for row in markdown_rows(shown_tables.split(f"**{stem}**", 1)[1].split("**", 1)[0])
+            if row["platform"] == "moving-arc-1"
+        }
+        for stem in (
+            "fast_moving_slow_trackers_wide_climb_filter",
+            "crazyflie_firmware_fast_moving_slow_trackers_wide_climb_filter",
+            "fast_moving_slow_trackers_wide_climb_filter_identified_lag",
+            "crazyflie_firmware_fast_moving_slow_trackers_wide_climb_filter_identified_lag",
+        )
+    }
+    pm_wide, fw_wide, pm_identified, fw_identified = (cells["centralised-filter"] for cells in wide.values())
+    assert fw_wide > firmware["centralised"] > firmware["centralised-filter"], (fw_wide, firmware)
+    assert fw_identified >= 80.0 and pm_wide >= 80.0 and pm_identified >= 80.0, wide
     assert "**crazyflie_firmware_filter**" in shown_tables
     # The tables of the filter as it is now, on both simulators, with the landing error under the paper's 2.26 cm.
     stems = ("scaling_filter_guard", "crazyflie_firmware_filter_guard")

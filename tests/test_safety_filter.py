@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -256,6 +258,27 @@ def test_settings_are_read_as_a_command_line_gives_them() -> None:
         parse_settings("cone_radios=0.04")
     with pytest.raises(ValueError, match="finite number >= 0"):
         parse_settings("cone_radius=-1")
+
+
+@pytest.mark.parametrize(
+    ("name", "matrix"),
+    [
+        ("pad-frame", "moving-slow-trackers-wide-climb-filter"),
+        ("moving-pads", "moving-smooth-16m-safety-filter-latency"),
+    ],
+)
+def test_named_settings_are_those_the_shipped_matrices_flew(name: str, matrix: str) -> None:
+    # The lab guide's table names these settings; each must be what its shipped transfer matrix recorded as flown.
+    flown = json.loads(Path(f"data/results/transfer/{matrix}/transfer.json").read_text())["config"]["safety_filter"]
+    assert parse_settings(name) == flown
+    # Later items override earlier ones, and a named set may be amended.
+    assert parse_settings(f"{name},reaction_time=0.3")["reaction_time"] == 0.3
+    assert parse_settings(f"reaction_time=0.3,{name}")["reaction_time"] == flown["reaction_time"]
+
+
+def test_an_unknown_name_lists_the_named_settings() -> None:
+    with pytest.raises(ValueError, match="nor one of the named settings moving-pads, pad-frame"):
+        parse_settings("pad-frames")
 
 
 def test_centralised_policy_through_the_filter_follows_a_fast_pad() -> None:

@@ -6,6 +6,7 @@ Examples::
     marlander transfer P --episodes 20 --rows floor,UR10 --out runs/t      # a quick look
     marlander transfer P --columns "point mass,PyBullet firmware"
     marlander transfer P --safety-filter cone_radius=0.04,reaction_time=0.35  # as deployed, moving pads
+    marlander transfer data/policies/moving-slow-trackers.safetensors --safety-filter pad-frame  # named settings
     marlander transfer data/policies/shared-quick-paired.safetensors --num-drones 8  # a shared policy, 8 drones
     marlander transfer P --rows "arc 0.2-0.5 m/s" --command-frame pad  # a static policy carried by the pad
 
@@ -76,7 +77,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         type=_filter_settings,
         metavar="KEY=VALUE,...",
         help="fly every command through the safety filter `marlander deploy` puts after the policy, with its "
-        "defaults or these changes to them (e.g. cone_radius=0.04)",
+        "defaults or these changes to them (e.g. cone_radius=0.04, or a named set: moving-pads, pad-frame)",
     )
     p.add_argument(
         "--command-frame",

@@ -376,7 +376,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--filter-settings",
         type=_checked_settings,
         metavar="KEY=VALUE,...",
-        help="changes to the safety filter's defaults for the *-filter controllers (e.g. cone_radius=0.04)",
+        help="changes to the safety filter's defaults for the *-filter controllers (e.g. cone_radius=0.04, or a "
+        "named set: moving-pads, pad-frame)",
     )
     parser.add_argument("--sizes", type=int, nargs="+", default=[2, 4, 8, 16])
     parser.add_argument("--trials", type=int, default=200)
