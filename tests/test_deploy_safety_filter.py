@@ -14,11 +14,13 @@ from __future__ import annotations
 import copy
 import dataclasses
 import re
+from typing import get_args
 
 import numpy as np
 import pytest
 import yaml
 
+from marlander_lite.deploy.commands import safety_filter_line
 from marlander_lite.deploy.config import (
     EXAMPLE_CONFIG,
     EXAMPLE_CONFIG_8,
@@ -33,8 +35,9 @@ from marlander_lite.deploy.mission import Mission
 from marlander_lite.deploy.modes import DronePhase, MissionMode
 from marlander_lite.deploy.rehearsal import rehearse
 from marlander_lite.deploy.runner import PolicyRunner, clamp_speed
+from marlander_lite.deploy.sections import NamedFilterSettings
 from marlander_lite.swarm.pad_acceleration import PadAcceleration
-from marlander_lite.swarm.safety_filter import SafetyFilterConfig
+from marlander_lite.swarm.safety_filter import NAMED_SETTINGS, SafetyFilterConfig, parse_settings
 from marlander_lite.task import TaskConfig
 
 SHARED = "data/policies/shared-quick-local.safetensors"
@@ -144,7 +147,7 @@ def test_the_keys_override_the_filter_s_settings(example):
     [
         (
             {"min_distnce": 0.2},
-            r"^safety_filter.min_distnce: unknown key; allowed: enabled, min_distance, settled_min_distance, gain, ",
+            r"^safety_filter.min_distnce: unknown key; allowed: enabled, settings, min_distance, settled_min_distance",
         ),
         ({"min_distance": -0.1}, r"^safety_filter.min_distance: Input should be greater than 0 \(got -0.1\)"),
         ({"cone_slope": -1.0}, r"^safety_filter.cone_slope: Input should be greater than or equal to 0 \(got -1.0\)"),
@@ -174,6 +177,31 @@ def test_the_keys_override_the_filter_s_settings(example):
 def test_mistakes_in_the_section_are_refused_naming_the_key(example, values, message):
     example["safety_filter"] = values
     with pytest.raises(ConfigError, match=message):
+        LabConfig.from_dict(example)
+
+
+def test_a_named_set_of_settings_flies_as_on_a_command_line(example):
+    # `settings: pad-frame` is --filter-settings pad-frame: the same names, the same keys, and keys given beside the
+    # name override the set's, as later items do on a command line
+    assert set(get_args(NamedFilterSettings)) == set(NAMED_SETTINGS)
+    for name in NAMED_SETTINGS:
+        example["safety_filter"] = {"settings": name}
+        section = LabConfig.from_dict(example).safety_filter
+        assert section.settings == name
+        assert section.filter_config() == SafetyFilterConfig.from_dict(parse_settings(name))
+        example["safety_filter"] = {"settings": name, "reaction_time": 0.3, "cone_radius": 0.02}
+        lab = LabConfig.from_dict(example)
+        expected = SafetyFilterConfig.from_dict(parse_settings(f"{name},reaction_time=0.3,cone_radius=0.02"))
+        assert lab.safety_filter.filter_config() == expected
+        assert lab.replace().safety_filter == lab.safety_filter  # a copy keeps the overrides, not the set's values
+        assert safety_filter_line(lab).startswith(f"Safety filter: on (settings {name}: drones kept 0.19 m apart")
+    # the pad-frame set's keys are not the defaults: a name that did nothing would fail here
+    assert LabConfig.from_dict(example).safety_filter.filter_config() != SafetyFilterConfig()
+
+
+def test_an_unknown_named_set_is_refused_naming_the_allowed_ones(example):
+    example["safety_filter"] = {"settings": "pad-frames", "reaction_time": 0.3}
+    with pytest.raises(ConfigError, match=r"^safety_filter.settings: Input should be 'moving-pads' or 'pad-frame'"):
         LabConfig.from_dict(example)
 
 
@@ -513,8 +541,6 @@ def test_the_flight_log_marks_filtered_commands(tmp_path):
 
 
 def test_deploy_says_whether_the_filter_is_on() -> None:
-    from marlander_lite.deploy.commands import safety_filter_line
-
     lab = load_lab_config(EXAMPLE_CONFIG)
     assert safety_filter_line(lab).startswith("Safety filter: on (drones kept 0.19 m apart")
     off = lab.replace(safety_filter=SafetyFilterSection(enabled=False))

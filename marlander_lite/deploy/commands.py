@@ -115,8 +115,10 @@ def safety_filter_line(lab: LabConfig) -> str:
     sf = lab.safety_filter
     if not sf.enabled:
         return "Safety filter: OFF (safety_filter.enabled: false): nothing keeps the drones apart in flight."
+    named = "" if sf.settings is None else f"settings {sf.settings}: "
     return (
-        f"Safety filter: on (drones kept {sf.min_distance:g} m apart, descent braked to {sf.touchdown_speed:g} m/s, "
+        f"Safety filter: on ({named}drones kept {sf.min_distance:g} m apart, descent braked to "
+        f"{sf.touchdown_speed:g} m/s, "
         f"approach cone slope {sf.cone_slope:g} "
         f"and radius {sf.cone_radius:g} m, centring {sf.centring_gain:g}/s; "
         "docs/lab_guide.md, 'The safety filter')."

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any
 
-from pydantic import Field, with_config
+from pydantic import BeforeValidator, Field, with_config
 
 from marlander_lite.deploy.safety import TAKEOFF_CLEARANCE, braking_margin_problem
 from marlander_lite.deploy.schema import (
@@ -53,6 +53,7 @@ from marlander_lite.deploy.sections import (
     SimulationConfig,
     SimulatorKind,
     current_simulator_name,
+    expand_named_filter_settings,
 )
 from marlander_lite.pad_assignment import PadAssignment
 from marlander_lite.platforms import PlateGeometry
@@ -105,7 +106,9 @@ class LabConfig:
     limits: LimitsConfig = field(default_factory=LimitsConfig)
     geofence: GeofenceConfig = field(default_factory=GeofenceConfig)
     safety: SafetyConfig = field(default_factory=SafetyConfig)
-    safety_filter: SafetyFilterSection = field(default_factory=SafetyFilterSection)
+    safety_filter: Annotated[SafetyFilterSection, BeforeValidator(expand_named_filter_settings)] = field(
+        default_factory=SafetyFilterSection
+    )
     crazyflie: CrazyflieParamsConfig = field(default_factory=CrazyflieParamsConfig)
     simulation: SimulationConfig = field(default_factory=SimulationConfig)
     log_dir: Annotated[Text, Field(min_length=1, max_length=4096)] = "flight_logs"

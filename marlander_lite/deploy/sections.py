@@ -32,7 +32,7 @@ from marlander_lite.deploy.schema import (
 )
 from marlander_lite.platforms import MAX_INCLINATION_DEG, PLATFORM_KINDS, PlatformKind
 from marlander_lite.simulators import SIMULATORS, SimulatorName
-from marlander_lite.swarm.safety_filter import SafetyFilterConfig
+from marlander_lite.swarm.safety_filter import NAMED_SETTINGS, SafetyFilterConfig
 from marlander_lite.task import MAX_PAD_FRAME_LEAD
 
 MocapKind = Literal["vicon", "optitrack", "qualisys", "vrpn", "mock"]
@@ -270,6 +270,19 @@ class SafetyConfig:
 
 
 _FILTER_DEFAULTS = SafetyFilterConfig()
+NamedFilterSettings = Literal["moving-pads", "pad-frame"]
+"""The names of :data:`~marlander_lite.swarm.safety_filter.NAMED_SETTINGS` a lab config's ``safety_filter.settings``
+may give (a test keeps the two lists equal)."""
+
+
+def expand_named_filter_settings(section: Any) -> Any:
+    """A ``safety_filter`` section as parsed from YAML, with the keys of its ``settings`` name filled in where the
+    section does not give them itself: ``{settings: pad-frame, reaction_time: 0.3}`` flies the ``pad-frame`` set with
+    ``reaction_time`` 0.3, as ``--filter-settings pad-frame,reaction_time=0.3`` does on a command line. Anything else
+    (no name, an unknown one, not a mapping) is passed on unchanged, for the schema to accept or refuse."""
+    if not isinstance(section, dict) or section.get("settings") not in NAMED_SETTINGS:
+        return section
+    return NAMED_SETTINGS[section["settings"]] | section
 
 
 @with_config(SCHEMA_CONFIG)
@@ -285,6 +298,11 @@ class SafetyFilterSection:
 
     enabled: Flag = True
     """Filter every policy command (false: the policy's commands go out as they are, only speed-clamped)."""
+    settings: NamedFilterSettings | None = None
+    """A named set of the keys below (``marlander_lite.swarm.safety_filter.NAMED_SETTINGS``, the same names as
+    ``--filter-settings``): ``pad-frame`` for a pad-frame policy on moving pads (``moving-slow-trackers``),
+    ``moving-pads`` for a world-frame one (``moving-smooth-16m``); keys given in the section override the set's.
+    None: the filter's defaults, for static pads (docs/lab_guide.md, "Which policy to fly")."""
     min_distance: Annotated[Real, Field(gt=0, le=2)] = _FILTER_DEFAULTS.min_distance
     """``d_s``: the distance kept between drone centres (m); at most the distance between any two drones' pads on one
     body, and less than the filter's 1 m activation distance."""
@@ -352,7 +370,7 @@ class SafetyFilterSection:
     def filter_config(self) -> SafetyFilterConfig:
         """The :class:`SafetyFilterConfig` these keys set (its defaults for the rest); :class:`ConfigError` if the
         filter refuses them."""
-        overrides = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "enabled"}
+        overrides = {f.name: getattr(self, f.name) for f in fields(self) if f.name not in ("enabled", "settings")}
         try:
             return SafetyFilterConfig(**overrides)
         except ValueError as error:
