@@ -18,7 +18,8 @@ from marlander_lite.experiments import transfer
 from marlander_lite.platforms import PlatformConfig
 from marlander_lite.pointmass import PointMassSwarm
 from marlander_lite.policy_file import PolicyContract, PolicyFileError
-from marlander_lite.swarm.safety_filter import SafetyFilterConfig, filter_actions, with_safety_filter
+from marlander_lite.swarm.filtered_policy import with_safety_filter
+from marlander_lite.swarm.safety_filter import SafetyFilterConfig, filter_actions
 from marlander_lite.task import TaskConfig
 from marlander_lite.training.presets import FINETUNE_PRESETS, get_preset
 

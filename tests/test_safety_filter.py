@@ -11,6 +11,7 @@ import pytest
 
 from marlander_lite.platforms import PlatformConfig
 from marlander_lite.swarm.evaluation import evaluate_cell
+from marlander_lite.swarm.filtered_policy import with_safety_filter
 from marlander_lite.swarm.pad_acceleration import PadAcceleration
 from marlander_lite.swarm.safety_filter import (
     SafetyFilterConfig,
@@ -18,7 +19,6 @@ from marlander_lite.swarm.safety_filter import (
     parse_settings,
     predict_observations,
     settled_drones,
-    with_safety_filter,
 )
 from marlander_lite.swarm.vec_env import SharedSwarmVecEnv
 

@@ -18,7 +18,8 @@ from marlander_lite.deploy.config import EXAMPLE_CONFIG, ConfigError, LabConfig,
 from marlander_lite.deploy.estimation import SwarmEstimate
 from marlander_lite.deploy.rehearsal import rehearse
 from marlander_lite.deploy.runner import PolicyRunner
-from marlander_lite.swarm.safety_filter import SafetyFilterConfig, with_safety_filter
+from marlander_lite.swarm.filtered_policy import with_safety_filter
+from marlander_lite.swarm.safety_filter import SafetyFilterConfig
 from marlander_lite.swarm.tracker_lag import TIME_CONSTANT_RANGE, TrackerLag
 from marlander_lite.task import TaskConfig
 

@@ -56,8 +56,9 @@ from marlander_lite.experiments.protocol import trial_seed
 from marlander_lite.policy_file import MLPPolicy, load_policy
 from marlander_lite.rotations import tilt_deg
 from marlander_lite.simulators import simulator_entry
+from marlander_lite.swarm.filtered_policy import with_safety_filter_on
 from marlander_lite.swarm.policy import SharedPolicy
-from marlander_lite.swarm.safety_filter import SafetyFilterConfig, with_safety_filter_on
+from marlander_lite.swarm.safety_filter import SafetyFilterConfig
 from marlander_lite.swarm.tracker_lag import TrackerLag
 
 NEAR_PAD = 0.5

@@ -46,14 +46,9 @@ from marlander_lite.platforms import PlateGeometry, PlatformConfig
 from marlander_lite.policy_file import load_policy, read_contract
 from marlander_lite.sensing import SensingConfig
 from marlander_lite.simulators import SIMULATORS, simulator_entry
+from marlander_lite.swarm.filtered_policy import BatchAct, with_safety_filter, with_safety_filter_on
 from marlander_lite.swarm.policy import SharedPolicy
-from marlander_lite.swarm.safety_filter import (
-    BatchAct,
-    SafetyFilterConfig,
-    parse_settings,
-    with_safety_filter,
-    with_safety_filter_on,
-)
+from marlander_lite.swarm.safety_filter import SafetyFilterConfig, parse_settings
 from marlander_lite.task import TaskConfig
 
 SCALING_CONTROLLERS = ("shared", "shared-apf", "shared-filter", "centralised", "centralised-filter", "baseline")
