@@ -143,13 +143,14 @@ def assert_paper_columns(rows: list[dict[str, str]], group: str) -> None:
 
 
 def assert_shipped_tables(shown: Shown, group: str) -> None:
-    """Both simulators' shipped Table I or II, the PyBullet fine-tunes' and the paper's network in the pad frame: our
-    columns from the shipped summary, the paper's from the paper."""
+    """Both simulators' shipped Table I or II, the PyBullet fine-tunes', the paper's network in the pad frame and the
+    paper's network trained on the point mass only: our columns from the shipped summary, the paper's from the paper."""
     shipped = (
         ("point-mass simulator, shipped", "pointmass"),
         ("PyBullet Crazyflie", "crazyflie"),
         ("PyBullet fine-tunes, the comparison rows", "crazyflie-finetunes"),
         ("PyBullet, the paper's network in the pad frame", "crazyflie-pad-frame"),
+        ("PyBullet, the paper's network trained on the point mass only", "crazyflie-paper-slow-trackers"),
     )
     for title, simulator in shipped:
         rows = shown.table(title)
