@@ -667,13 +667,17 @@ def check_08(shown: Shown) -> None:
     # Section 4p: the paper's network on the same recipe. Its worst cell, Wilson bound and largest errors are the
     # csv's and meet the issue's `paper` target (>= 95 %, lower bound >= 90 %; 2.26 cm but in the 0.21.0 order); in
     # PyFlyt 0.22 it lands where paper-robust-smooth does not.
-    for name in ("paper-slow-trackers", "paper-slow-trackers-seed1"):  # seeds 0 and 1
+    for name in ("paper-slow-trackers", "paper-slow-trackers-seed1", "paper-slow-trackers-seed2"):  # seeds 0-2
         paper = read_csv(RESULTS / "transfer" / name / "transfer.csv")
         [(worst,)] = shown.numbers(rf"^{name} worst cell: (\S+) % \(.+\)$")
         [(lowest,)] = shown.numbers(rf"^{name} lowest Wilson lower bound: (\S+) %$")
+        [(below, cells)] = shown.numbers(rf"^{name} cells below 95 %: (\d+) of (\d+) .*$")
         assert close(worst, 100 * min(float(c["success_rate"]) for c in paper), 0.051), name
         assert close(lowest, 100 * min(float(c["wilson_low"]) for c in paper), 0.051), name
-        assert worst >= 95.0 and lowest >= 90.0, name
+        assert below == sum(float(c["success_rate"]) < 0.95 for c in paper) and cells == len(paper) == 24, name
+        # seeds 0 and 1 meet the target in every cell; seed 2 misses the 95 % in one cell, by one episode (94.5 %)
+        assert lowest >= 90.0 and (worst >= 95.0 if name != "paper-slow-trackers-seed2" else below == 1), name
+        assert worst >= 94.5, name
         pattern = rf"^{name}, every column but PyFlyt's 0.21.0 order: largest landing error (\S+) cm$"
         [(widest,)] = shown.numbers(pattern)
         eleven = [c for c in paper if c["column"] != "PyFlyt Crazyflie"]

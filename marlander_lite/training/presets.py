@@ -366,7 +366,9 @@ _PAPER_SLOW_TRACKERS = _QUICK_SLOW_TRACKERS.replace(net_arch=PAPER_NET)
 on 2 cores; the family opened at 7.0 M steps, the small network's at 4.4 M) lands alone 96.0-99.5 % in every cell of
 the twelve-column transfer matrix, Wilson lower bounds 92.3 % and above, at 0.70-1.55 cm in eleven columns (PyFlyt
 0.22: 1.42 / 1.41 cm) and 3.61 / 3.45 cm in PyFlyt's 0.21.0 order; its seed 1 (73.1 min beside evaluations) 96.5-99.5 %,
-lower bounds 92.9 % and above, at 0.74-1.57 cm in those eleven columns. ``paper-robust-smooth`` (the ``paper`` preset's
+lower bounds 92.9 % and above, at 0.74-1.57 cm in those eleven columns; its seed 2 (84.5 min beside other work)
+94.5-100 %, lower bounds 90.4 % and above, 95 % or more in all cells but PyFlyt's 0.21.0-order floor (94.5 %), at
+0.71-1.72 cm in those eleven columns. ``paper-robust-smooth`` (the ``paper`` preset's
 recipe, fine-tuned with smooth commands) lands 0-2 % alone in PyFlyt, and an 8 M-step fine-tune of it on this family
 landed nobody (touchdowns at 0.6-1 m/s; docs/transfer.md)."""
 
