@@ -772,11 +772,24 @@ def check_08(shown: Shown) -> None:
     assert count == len(long) == 24 and at_90 == sum(float(c["success_rate"]) >= 0.9 for c in long)
     assert close(worst, 100 * min(float(c["success_rate"]) for c in long), 0.051)
     assert close(widest, max(float(c["landing_error_cm"]) for c in long), 0.0051)
+    # Section 4t: each shipped run on random Crazyflies, its summary recounted from its variants.csv.
+    shown_runs = re.findall(r"^random Crazyflies: (\S+)\n((?:\|.*\n)+)", shown.text, flags=re.MULTILINE)
+    assert {name for name, _ in shown_runs} == {p.parent.name for p in (RESULTS / "variants").glob("*/variants.csv")}
+    for name, table in shown_runs:
+        lines = read_csv(RESULTS / "variants" / name / "variants.csv")
+        for r in markdown_rows(table):
+            row = [line for line in lines if line["row"] == r["row"]]
+            landed = sum(float(line["success_rate"]) >= 0.9 for line in row)
+            assert r["variants at 90 % or more"] == f"{landed} of {len(row)}", (name, r)
+            pooled = sum(int(line["successes"]) for line in row) / sum(int(line["episodes"]) for line in row)
+            assert close(first_number(r["all episodes % [95 % Wilson]"]), 100 * pooled, 0.051), (name, r)
+            worst = 100 * min(float(line["success_rate"]) for line in row)
+            assert close(first_number(r["worst variant"]), worst, 0.051), (name, r)
     # step responses (with and without RotorPy, and with PyFlyt), transfer bars, the pad's acceleration, the late
     # descent, the swing, the steeper cone's landing errors, PyFlyt held still, the opening family, the integrator,
     # the landing errors of 12 and 20 M steps in PyFlyt 0.22, the two networks on the same recipe, moving pads in the
-    # pad frame
-    assert shown.figures == 14
+    # pad frame, success on random Crazyflies
+    assert shown.figures == 15
 
 
 def transfer_csv(name: str) -> list[dict[str, str]]:

@@ -14,6 +14,7 @@ from dataclasses import fields
 import numpy as np
 
 from marlander_lite.crazyflie.control import PIDGains
+from marlander_lite.crazyflie.firmware import FirmwareGains
 from marlander_lite.crazyflie.params import CF2XParams, PhysicsConfig
 from marlander_lite.crazyflie.perturb import Controller, Perturbation
 from marlander_lite.crazyflie.simulator import CrazyflieSwarm
@@ -42,13 +43,14 @@ class CrazyflieBatch:
         controller: Controller = "pid",
         perturbation: Perturbation | None = None,
         engine: Engine = "auto",
+        firmware_gains: FirmwareGains | None = None,
     ) -> None:
         if num_envs < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}.")
         self.task, self.platform, self.num_envs = task_config, platform, num_envs
         self.swarms = [
             CrazyflieSwarm(
-                task_config, platform, 1, physics, drone, gains, False, controller, perturbation, engine=engine
+                task_config, platform, 1, physics, drone, gains, False, controller, perturbation, firmware_gains, engine
             )
             for _ in range(num_envs)
         ]

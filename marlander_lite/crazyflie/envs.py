@@ -14,6 +14,7 @@ from stable_baselines3.common.vec_env import SubprocVecEnv, VecEnv, VecMonitor
 
 from marlander_lite.crazyflie.batch import CrazyflieBatch
 from marlander_lite.crazyflie.control import PIDGains
+from marlander_lite.crazyflie.firmware import FirmwareGains
 from marlander_lite.crazyflie.params import CF2XParams, PhysicsConfig, build_physics
 from marlander_lite.crazyflie.perturb import Controller, Perturbation, build_perturbation, check_controller
 from marlander_lite.crazyflie.simulator import CrazyflieSwarm
@@ -57,6 +58,9 @@ class CrazyflieOptions(EnvOptions):
     perturbation: Perturbation | Mapping[str, Any] | None = None
     """How the drone differs from the one its tracker was tuned for (:class:`Perturbation` or a mapping of
     its fields, e.g. ``{"mass_scale": 1.15, "latency_s": 0.06}``); ``None``: not at all."""
+    firmware_gains: FirmwareGains | None = None
+    """Gains and limits of the ``"firmware"`` tracker (:class:`FirmwareGains`: its tilt clamp, attitude and rate
+    loops); ``None``: the Crazyflie firmware's defaults. Only with ``controller="firmware"``."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -65,6 +69,14 @@ class CrazyflieOptions(EnvOptions):
         if self.gains is not None and not isinstance(self.gains, PIDGains):
             raise TypeError(f"gains must be a PIDGains, got {type(self.gains).__name__}.")
         check_controller(self.controller)
+        if self.firmware_gains is not None:
+            if not isinstance(self.firmware_gains, FirmwareGains):
+                raise TypeError(f"firmware_gains must be a FirmwareGains, got {type(self.firmware_gains).__name__}.")
+            if self.controller != "firmware":
+                raise ValueError(
+                    f"firmware_gains set the 'firmware' tracker's gains, but controller={self.controller!r}; "
+                    "give controller='firmware', or gains=PIDGains(...) for the 'pid' tracker."
+                )
         resolve_engine(self.engine)
         _ = (self.physics_config, self.perturbation_config)
 
@@ -91,6 +103,7 @@ class CrazyflieOptions(EnvOptions):
                 bool(gui),
                 controller=self.controller,
                 perturbation=self.perturbation_config,
+                firmware_gains=self.firmware_gains,
                 engine=self.engine,
             )
         if gui:
@@ -108,6 +121,7 @@ class CrazyflieOptions(EnvOptions):
             self.gains,
             controller=self.controller,
             perturbation=self.perturbation_config,
+            firmware_gains=self.firmware_gains,
             engine=self.engine,
         )
 

@@ -39,7 +39,7 @@ import hashlib
 import json
 import multiprocessing
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent import futures
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -459,10 +459,14 @@ class TransferConfig:
         return None
 
 
-def transfer_matrix(config: TransferConfig) -> list[CellResult]:
-    """Fly every cell of ``config`` and return the results, rows outer, columns inner, in the given order."""
+def transfer_matrix(config: TransferConfig, columns: Sequence[Column] | None = None) -> list[CellResult]:
+    """Fly every cell of ``config`` and return the results, rows outer, columns inner, in the given order.
+
+    ``columns``: simulator settings to fly instead of ``config.columns`` (e.g. the random Crazyflies of
+    :mod:`~marlander_lite.experiments.variants`)."""
     n = config.swarm_size()  # fails before any worker starts
-    cells = [(c, r) for r in config.rows for c in config.columns]
+    flown: Sequence[str | Column] = config.columns if columns is None else columns
+    cells = [(c, r) for r in config.rows for c in flown]
     args = [
         (
             str(config.policy),

@@ -9,18 +9,22 @@ Examples::
     marlander transfer data/policies/moving-slow-trackers.safetensors --safety-filter pad-frame  # named settings
     marlander transfer data/policies/shared-quick-paired.safetensors --num-drones 8  # a shared policy, 8 drones
     marlander transfer P --rows "arc 0.2-0.5 m/s" --command-frame pad  # a static policy carried by the pad
+    marlander transfer P --variants 40 --episodes 25 --rows floor,UR10   # 40 random Crazyflies instead of columns
 
 Writes ``transfer.csv``, ``transfer.json`` and ``transfer.md`` to ``--out`` (default
-``runs/transfer-<policy name>``) and prints the table. Existing files are kept unless ``--force``.
+``runs/transfer-<policy name>``) and prints the table; with ``--variants``, ``variants.csv``, ``.json`` and ``.md``
+(default ``runs/variants-<policy name>``). Existing files are kept unless ``--force``.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from pathlib import Path
 
+from marlander_lite.experiments import variants as random_variants
 from marlander_lite.experiments.commands import _choices
 from marlander_lite.experiments.transfer import (
     COLUMNS,
@@ -56,7 +60,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--columns",
         type=_choices(columns + extra, "column(s)"),
-        default=columns,
+        default=None,
         help=column_help.replace("%", "%%"),  # argparse formats help
     )
     p.add_argument(
@@ -101,7 +105,25 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="S",
         help="each episode's time limit (default: the policy's training episode, 10 s; the paper protocol's is 30 s)",
     )
-    p.add_argument("--out", type=Path, help="results folder (default runs/transfer-<policy name>)")
+    p.add_argument(
+        "--variants",
+        type=int,
+        default=None,
+        metavar="N",
+        help="instead of the columns, fly N Crazyflies drawn at random (tracker, physics, mass, latency, gains, tilt "
+        "clamp; marlander_lite.experiments.variants)",
+    )
+    p.add_argument("--variant-seed", type=int, default=0, help="seed of the --variants draw (default 0)")
+    p.add_argument(
+        "--variant-ranges",
+        type=_variant_ranges,
+        default=None,
+        metavar="JSON",
+        help='changes to the ranges the variants are drawn from, e.g. \'{"latency_s": [0, 0.1], "firmware_share": 1}\'',
+    )
+    p.add_argument(
+        "--out", type=Path, help="results folder (default runs/transfer-<policy name>, runs/variants-<policy name>)"
+    )
     p.add_argument("--force", action="store_true", help="overwrite transfer.* files already in --out")
     p.set_defaults(func=run)
 
@@ -114,14 +136,29 @@ def _filter_settings(text: str) -> dict[str, float]:
         raise argparse.ArgumentTypeError(str(error)) from None
 
 
+def _variant_ranges(text: str) -> random_variants.VariantRanges:
+    """``--variant-ranges``' JSON object as :class:`~marlander_lite.experiments.variants.VariantRanges`."""
+    try:
+        values = json.loads(text)
+        if not isinstance(values, dict):
+            raise ValueError(f"give a JSON object of field -> [low, high] or share, got {text!r}")
+        return random_variants.VariantRanges.from_mapping(values)
+    except (ValueError, TypeError) as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+
+
 def run(args: argparse.Namespace) -> int:
     if not args.policy.is_file():
         raise FileNotFoundError(f"--policy: no file {args.policy}")
+    if args.variants is None and (args.variant_ranges is not None or args.variant_seed != 0):
+        raise ValueError("--variant-seed and --variant-ranges need --variants N")
+    if args.variants is not None and args.columns is not None:
+        raise ValueError("--variants flies random Crazyflies instead of the columns: leave --columns out")
     config = TransferConfig(
         policy=str(args.policy),
         episodes=args.episodes,
         seed=args.seed,
-        columns=args.columns,
+        columns=args.columns or tuple(c.name for c in COLUMNS),
         rows=args.rows,
         sensing=args.sensing,
         workers=args.workers,
@@ -131,6 +168,8 @@ def run(args: argparse.Namespace) -> int:
         pad_frame_lead=args.pad_frame_lead,
         episode_seconds=args.episode_seconds,
     )
+    if args.variants is not None:
+        return run_variants(args, config)
     out = args.out or Path("runs") / f"transfer-{args.policy.stem}"
     existing = [out / name for name in OUTPUT_NAMES if (out / name).exists()]
     if existing and not args.force:
@@ -144,5 +183,24 @@ def run(args: argparse.Namespace) -> int:
     print(format_table(results))
     print()
     print(format_flight_table(results))
+    print(f"\n{wall:.0f} s; wrote {', '.join(map(str, paths))}", file=sys.stderr)
+    return 0
+
+
+def run_variants(args: argparse.Namespace, config: TransferConfig) -> int:
+    """``--variants N``: draw N Crazyflies, fly the policy on each, write ``variants.*`` and print the summary."""
+    ranges = args.variant_ranges or random_variants.VariantRanges()
+    drawn = random_variants.draw_variants(args.variants, args.variant_seed, ranges)
+    out = args.out or Path("runs") / f"variants-{args.policy.stem}"
+    existing = [out / name for name in random_variants.OUTPUT_NAMES if (out / name).exists()]
+    if existing and not args.force:
+        raise ValueError(f"--out: {', '.join(map(str, existing))} already exist; choose another --out or add --force")
+    cells = len(config.rows) * len(drawn)
+    print(f"Flying {args.policy} on {len(drawn)} random Crazyflies x {len(config.rows)} rows = {cells} cells ...")
+    started = time.perf_counter()
+    results = random_variants.fly_variants(config, drawn)
+    wall = time.perf_counter() - started
+    paths = random_variants.write_variants(config, ranges, args.variant_seed, drawn, results, out, wall)
+    print(random_variants.format_summary(results, drawn))
     print(f"\n{wall:.0f} s; wrote {', '.join(map(str, paths))}", file=sys.stderr)
     return 0
