@@ -564,7 +564,9 @@ def test_an_options_object_with_face_keywords_builds_the_same_env_as_keywords():
     np.testing.assert_array_equal(steps[0], steps[1])
     for env in (by_object, by_keywords):
         env.close()
-    with pytest.raises(TypeError, match=r"\['gui'\]; allowed options: num_drones.*perturbation, num_envs, seed"):
+    with pytest.raises(
+        TypeError, match=r"\['gui'\]; allowed options: num_drones.*perturbation, firmware_gains, num_envs, seed"
+    ):
         marlander_lite.make_vec_env("crazyflie", options=options, gui=True)
 
 

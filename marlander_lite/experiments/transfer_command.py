@@ -124,7 +124,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--out", type=Path, help="results folder (default runs/transfer-<policy name>, runs/variants-<policy name>)"
     )
-    p.add_argument("--force", action="store_true", help="overwrite transfer.* files already in --out")
+    p.add_argument("--force", action="store_true", help="overwrite transfer.* (or variants.*) files already in --out")
     p.set_defaults(func=run)
 
 
