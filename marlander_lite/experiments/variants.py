@@ -40,6 +40,7 @@ from marlander_lite.experiments.transfer import (
     _filter_words,
     transfer_matrix,
 )
+from marlander_lite.pointmass.family import checked_range
 
 Range = tuple[float, float]
 
@@ -83,21 +84,7 @@ class VariantRanges:
             if isinstance(value, bool) or not isinstance(value, int | float) or not 0.0 <= value <= 1.0:
                 raise ValueError(f"VariantRanges.{name} must be a probability from 0 to 1, got {value!r}.")
         for name, (lowest, highest) in RANGE_BOUNDS.items():
-            value = getattr(self, name)
-            try:
-                low, high = (float(v) for v in value)
-            except (TypeError, ValueError):
-                raise ValueError(f"VariantRanges.{name} must be a (low, high) pair, got {value!r}.") from None
-            if not (np.isfinite(low) and np.isfinite(high)):
-                raise ValueError(f"VariantRanges.{name} must be finite, got {value!r}.")
-            if low > high:
-                raise ValueError(f"VariantRanges.{name} is an empty range: low {low} > high {high}; give (low, high).")
-            if low < lowest or high > highest:
-                why = " (a latency cannot be negative)" if name == "latency_s" else ""
-                raise ValueError(
-                    f"VariantRanges.{name} = {value!r} leaves the allowed interval [{lowest}, {highest}]{why}."
-                )
-            object.__setattr__(self, name, (low, high))
+            object.__setattr__(self, name, checked_range("VariantRanges", name, getattr(self, name), lowest, highest))
 
     @classmethod
     def from_mapping(cls, values: Mapping[str, Any]) -> VariantRanges:

@@ -83,24 +83,7 @@ class DynamicsFamily:
             "velocity_integral_gain": (0.0, 5.0),
         }
         for name, (lowest, highest) in bounds.items():
-            value = getattr(self, name)
-            try:
-                low, high = (float(v) for v in value)
-            except (TypeError, ValueError):
-                raise ValueError(
-                    f"DynamicsFamily.{name} must be a (low, high) pair of numbers, got {value!r}."
-                ) from None
-            if not (np.isfinite(low) and np.isfinite(high)):
-                raise ValueError(f"DynamicsFamily.{name} must be finite, got {value!r}.")
-            if low > high:
-                raise ValueError(f"DynamicsFamily.{name} is an empty range: low {low} > high {high}; give (low, high).")
-            if low < lowest or high > highest:
-                raise ValueError(
-                    f"DynamicsFamily.{name} = {value!r} leaves the allowed interval [{lowest}, {highest}]"
-                    + (" (a latency cannot be negative)" if name == "latency_s" else "")
-                    + "."
-                )
-            object.__setattr__(self, name, (low, high))
+            object.__setattr__(self, name, checked_range("DynamicsFamily", name, getattr(self, name), lowest, highest))
 
     @classmethod
     def from_mapping(cls, values: Mapping[str, Any]) -> DynamicsFamily:
@@ -139,6 +122,26 @@ class DynamicsFamily:
 
     def _unused(self, name: str) -> bool:
         return name in EXTENSIONS and getattr(self, name) == (0.0, 0.0)
+
+
+def checked_range(owner: str, name: str, value: Any, lowest: float, highest: float) -> Range:
+    """``value`` as a ``(low, high)`` pair of floats within ``[lowest, highest]``.
+
+    Raises a ``ValueError`` naming ``owner.name`` and what is allowed: not a pair of numbers, not finite, an empty
+    range (``low > high``) or one leaving the allowed interval (a negative ``latency_s`` says why).
+    """
+    try:
+        low, high = (float(v) for v in value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{owner}.{name} must be a (low, high) pair of numbers, got {value!r}.") from None
+    if not (np.isfinite(low) and np.isfinite(high)):
+        raise ValueError(f"{owner}.{name} must be finite, got {value!r}.")
+    if low > high:
+        raise ValueError(f"{owner}.{name} is an empty range: low {low} > high {high}; give (low, high).")
+    if low < lowest or high > highest:
+        why = " (a latency cannot be negative)" if name == "latency_s" else ""
+        raise ValueError(f"{owner}.{name} = {value!r} leaves the allowed interval [{lowest}, {highest}]{why}.")
+    return low, high
 
 
 EXTENSIONS = ("velocity_integral_gain",)
