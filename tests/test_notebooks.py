@@ -788,8 +788,8 @@ def check_08(shown: Shown) -> None:
     # step responses (with and without RotorPy, and with PyFlyt), transfer bars, the pad's acceleration, the late
     # descent, the swing, the steeper cone's landing errors, PyFlyt held still, the opening family, the integrator,
     # the landing errors of 12 and 20 M steps in PyFlyt 0.22, the two networks on the same recipe, moving pads in the
-    # pad frame, success on random Crazyflies
-    assert shown.figures == 15
+    # pad frame, success on random Crazyflies in PyBullet and in PyFlyt
+    assert shown.figures == 16
 
 
 def transfer_csv(name: str) -> list[dict[str, str]]:

@@ -22,6 +22,7 @@ from marlander_lite.crazyflie.firmware import FirmwareGains
 from marlander_lite.experiments import transfer
 from marlander_lite.experiments.metrics import wilson_interval
 from marlander_lite.experiments.variants import (
+    PYFLYT_ORDERS,
     RANGE_BOUNDS,
     Variant,
     VariantRanges,
@@ -174,6 +175,37 @@ def test_firmware_gains_need_the_firmware_tracker() -> None:
     assert CrazyflieOptions(controller="firmware", task=TaskConfig(num_drones=1)).firmware_gains is None
 
 
+def test_pyflyt_variants_draw_the_same_values_and_give_them_to_pyflyts_drone() -> None:
+    crazyflies, pyflyts = draw_variants(40, 5), draw_variants(40, 5, simulator="pyflyt")
+    for mine, theirs in zip(crazyflies, pyflyts, strict=True):  # the same numbers, only the tracker differs
+        assert (theirs.simulator, theirs.physics) == ("pyflyt", mine.physics)
+        assert [getattr(theirs, name) for name in RANGE_BOUNDS] == [getattr(mine, name) for name in RANGE_BOUNDS]
+        assert theirs.controller in PYFLYT_ORDERS and mine.simulator == "crazyflie"
+    assert 8 <= sum(v.controller == "pyflyt 0.21.0" for v in pyflyts) <= 32  # half, within 3 standard deviations
+    column = pyflyts[0].column()
+    assert column.simulator == "pyflyt" and column.options["read_state"] == PYFLYT_ORDERS[pyflyts[0].controller]
+    tuning = column.options["tuning"]
+    assert tuning["latency_s"] == pyflyts[0].latency_s and tuning["tilt_limit_deg"] == pyflyts[0].tilt_limit_deg
+    assert tuning["body_drag"] == (pyflyts[0].physics == "aero")
+    late = draw_variants(10, 0, VariantRanges(late_read_share=1.0), simulator="pyflyt")
+    assert {v.controller for v in late} == {"pyflyt 0.21.0"}
+    with pytest.raises(ValueError, match="--variant-simulator must be one of crazyflie, pyflyt"):
+        draw_variants(3, 0, simulator="rotorpy")
+
+
+def test_the_command_flies_random_crazyflies_in_pyflyt(tmp_path, capsys) -> None:
+    pytest.importorskip("PyFlyt")
+    out = tmp_path / "v"
+    args = ["transfer", POLICY, "--variants", "2", "--episodes", "1", "--rows", "floor", "--workers", "1"]
+    assert main([*args, "--variant-simulator", "pyflyt", "--out", str(out)]) == 0
+    assert "in pyflyt" in capsys.readouterr().out
+    lines = list(csv.DictReader((out / "variants.csv").open()))
+    assert [line["simulator"] for line in lines] == ["pyflyt", "pyflyt"]
+    variants, cells = read_variants(out / "variants.json")
+    assert variants == draw_variants(2, 0, simulator="pyflyt") and len(cells) == 2
+    assert "random Crazyflies in PyFlyt" in (out / "variants.md").read_text()
+
+
 def _cell(column: str, row: str, successes: int, episodes: int = 20, error: float = 1.0) -> transfer.CellResult:
     low, high = wilson_interval(successes, episodes)
     return transfer.CellResult(
@@ -221,6 +253,7 @@ def test_the_command_flies_random_crazyflies_and_writes_them_with_their_results(
         (["--variants", "0"], "--variants must be an integer from 1 to 1000"),
         (["--variants", "3", "--columns", "point mass"], "leave --columns out"),
         (["--variant-seed", "2"], "need --variants N"),
+        (["--variant-simulator", "pyflyt"], "need --variants N"),
         (["--variants", "3", "--variant-ranges", '{"latency_s": [0.1, 0.0]}'], "empty range"),
         (["--variants", "3", "--variant-ranges", "[1, 2]"], "JSON object"),
     ],

@@ -10,6 +10,7 @@ Examples::
     marlander transfer data/policies/shared-quick-paired.safetensors --num-drones 8  # a shared policy, 8 drones
     marlander transfer P --rows "arc 0.2-0.5 m/s" --command-frame pad  # a static policy carried by the pad
     marlander transfer P --variants 40 --episodes 25 --rows floor,UR10   # 40 random Crazyflies instead of columns
+    marlander transfer P --variants 40 --episodes 25 --variant-simulator pyflyt  # the same draw, in PyFlyt
 
 Writes ``transfer.csv``, ``transfer.json`` and ``transfer.md`` to ``--out`` (default
 ``runs/transfer-<policy name>``) and prints the table; with ``--variants``, ``variants.csv``, ``.json`` and ``.md``
@@ -115,6 +116,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--variant-seed", type=int, default=0, help="seed of the --variants draw (default 0)")
     p.add_argument(
+        "--variant-simulator",
+        choices=random_variants.VARIANT_SIMULATORS,
+        default=None,
+        help="where the --variants fly: crazyflie (our PyBullet swarm, the default) or pyflyt (PyFlyt's own "
+        "controller with the drawn mass, latency, gains and tilt clamp; the optional extra pyflyt)",
+    )
+    p.add_argument(
         "--variant-ranges",
         type=_variant_ranges,
         default=None,
@@ -150,8 +158,10 @@ def _variant_ranges(text: str) -> random_variants.VariantRanges:
 def run(args: argparse.Namespace) -> int:
     if not args.policy.is_file():
         raise FileNotFoundError(f"--policy: no file {args.policy}")
-    if args.variants is None and (args.variant_ranges is not None or args.variant_seed != 0):
-        raise ValueError("--variant-seed and --variant-ranges need --variants N")
+    if args.variants is None and (
+        args.variant_ranges is not None or args.variant_seed != 0 or args.variant_simulator is not None
+    ):
+        raise ValueError("--variant-seed, --variant-ranges and --variant-simulator need --variants N")
     if args.variants is not None and args.columns is not None:
         raise ValueError("--variants flies random Crazyflies instead of the columns: leave --columns out")
     config = TransferConfig(
@@ -190,13 +200,13 @@ def run(args: argparse.Namespace) -> int:
 def run_variants(args: argparse.Namespace, config: TransferConfig) -> int:
     """``--variants N``: draw N Crazyflies, fly the policy on each, write ``variants.*`` and print the summary."""
     ranges = args.variant_ranges or random_variants.VariantRanges()
-    drawn = random_variants.draw_variants(args.variants, args.variant_seed, ranges)
+    simulator = args.variant_simulator or "crazyflie"
+    drawn = random_variants.draw_variants(args.variants, args.variant_seed, ranges, simulator)
     out = args.out or Path("runs") / f"variants-{args.policy.stem}"
     existing = [out / name for name in random_variants.OUTPUT_NAMES if (out / name).exists()]
     if existing and not args.force:
         raise ValueError(f"--out: {', '.join(map(str, existing))} already exist; choose another --out or add --force")
-    cells = len(config.rows) * len(drawn)
-    print(f"Flying {args.policy} on {len(drawn)} random Crazyflies x {len(config.rows)} rows = {cells} cells ...")
+    print(f"Flying {args.policy} on {len(drawn)} random Crazyflies in {simulator}, {len(config.rows)} rows")
     started = time.perf_counter()
     results = random_variants.fly_variants(config, drawn)
     wall = time.perf_counter() - started

@@ -11,9 +11,14 @@ will be none of them. This module draws ``count`` Crazyflies at random instead, 
   inner (attitude and rate) loops' gains scaled, and the tilt clamp,
 
 from :class:`VariantRanges`, wider than the matrix's fixed columns, and flies the policy on each (``marlander transfer
-POLICY --variants 40``). What it reports is a distribution: in how many of the drawn Crazyflies the policy lands 90 %
-of episodes or more, the median, and the worst variant with the parameters that broke it (docs/transfer.md, "Random
-Crazyflies"). Every variant flies the same episodes (the matrix's seeds), so two policies meet the same drones.
+POLICY --variants 40``). The same draw can be flown in PyFlyt, a simulator this project did not write
+(``--variant-simulator pyflyt``): PyFlyt's own cascaded PID with the same mass, latency, gains and tilt clamp drawn
+(:class:`~marlander_lite.pyflyt_sim.tuning.PyFlytTuning`), its controllers reading the state on time (as PyFlyt 0.22)
+or one physics step late (as 0.21.0), with or without its body drag.
+
+What it reports is a distribution: in how many of the drawn Crazyflies the policy lands 90 % of episodes or more, the
+median, and the worst variant with the parameters that broke it (docs/transfer.md, "Random Crazyflies"). Every
+variant flies the same episodes (the matrix's seeds), so two policies meet the same drones.
 """
 
 from __future__ import annotations
@@ -50,6 +55,13 @@ SUCCESS_THRESHOLD = 0.9
 MAX_VARIANTS = 1000
 """The most variants one run draws (named ``variant 000`` to ``variant 999``)."""
 
+VARIANT_SIMULATORS = ("crazyflie", "pyflyt")
+"""Where random Crazyflies are flown: our PyBullet swarm (its two trackers), or PyFlyt (the optional extra
+``pyflyt``) under its own controller."""
+
+PYFLYT_ORDERS = {"pyflyt 0.22": "after_physics", "pyflyt 0.21.0": "before_physics"}
+"""A PyFlyt variant's ``controller``: when PyFlyt's controllers read the state (``PyFlytOptions.read_state``)."""
+
 
 @dataclass(frozen=True)
 class VariantRanges:
@@ -61,9 +73,13 @@ class VariantRanges:
     """
 
     firmware_share: float = 0.5
-    """Probability that a variant flies the Crazyflie firmware's tracker; otherwise our cascaded PID."""
+    """Probability that a variant flies the Crazyflie firmware's tracker; otherwise our cascaded PID (PyBullet)."""
     aero_share: float = 0.5
-    """Probability that a variant's physics has ground effect, drag and downwash (``"aero"``); otherwise ``"bare"``."""
+    """Probability that a variant's physics has ground effect, drag and downwash (``"aero"``; in PyFlyt, its body
+    drag); otherwise ``"bare"``, the rigid body alone."""
+    late_read_share: float = 0.5
+    """PyFlyt only: probability that PyFlyt's controllers read each state one physics step late, as its pinned 0.21.0
+    does (``"pyflyt 0.21.0"``); otherwise on time, as PyFlyt since 0.22 (``"pyflyt 0.22"``)."""
     mass_scale: Range = (0.85, 1.2)
     """True mass over the mass the tracker assumes (:attr:`Perturbation.mass_scale`)."""
     latency_s: Range = (0.0, 0.08)
@@ -79,7 +95,7 @@ class VariantRanges:
     vector (30 by default)."""
 
     def __post_init__(self) -> None:
-        for name in ("firmware_share", "aero_share"):
+        for name in ("firmware_share", "aero_share", "late_read_share"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int | float) or not 0.0 <= value <= 1.0:
                 raise ValueError(f"VariantRanges.{name} must be a probability from 0 to 1, got {value!r}.")
@@ -108,7 +124,7 @@ RANGE_BOUNDS: dict[str, Range] = {
 
 @dataclass(frozen=True)
 class Variant:
-    """One drawn Crazyflie: its tracker, physics and the values drawn for it."""
+    """One drawn Crazyflie: its tracker, physics and the values drawn for it, and the simulator it flies in."""
 
     name: str
     controller: str
@@ -118,9 +134,21 @@ class Variant:
     outer_gain_scale: float
     inner_gain_scale: float
     tilt_limit_deg: float
+    simulator: str = "crazyflie"
+    """One of :data:`VARIANT_SIMULATORS`."""
 
     def column(self) -> Column:
-        """The PyBullet swarm's options for this variant, as a transfer-matrix column."""
+        """The simulator's options for this variant, as a transfer-matrix column."""
+        if self.simulator == "pyflyt":
+            tuning = {
+                "mass_scale": self.mass_scale,
+                "latency_s": self.latency_s,
+                "outer_gain_scale": self.outer_gain_scale,
+                "inner_gain_scale": self.inner_gain_scale,
+                "tilt_limit_deg": self.tilt_limit_deg,
+                "body_drag": self.physics == "aero",
+            }
+            return Column(self.name, "pyflyt", {"read_state": PYFLYT_ORDERS[self.controller], "tuning": tuning})
         options: dict[str, Any] = {
             "controller": self.controller,
             "physics": self.physics,
@@ -163,32 +191,46 @@ def _roll_pitch(triple: tuple[float, float, float], factor: float) -> tuple[floa
 VARIANT_FIELDS = tuple(f.name for f in dataclasses.fields(Variant))
 
 
-def draw_variants(count: int, seed: int = 0, ranges: VariantRanges | None = None) -> tuple[Variant, ...]:
-    """``count`` Crazyflies drawn from ``ranges`` (the defaults if None).
+def draw_variants(
+    count: int, seed: int = 0, ranges: VariantRanges | None = None, simulator: str = "crazyflie"
+) -> tuple[Variant, ...]:
+    """``count`` Crazyflies drawn from ``ranges`` (the defaults if None), to fly in ``simulator``.
 
     Variant ``k`` draws from its own generator, ``numpy.random.SeedSequence(seed, spawn_key=(k,))``: the tracker's
     coin, the physics' coin, then each range in the order of :data:`RANGE_BOUNDS`. So a seed gives the same variants
-    on every machine, and the first ten of a draw of 40 are the draw of 10.
+    on every machine, and the first ten of a draw of 40 are the draw of 10. In PyFlyt the tracker's coin is the read
+    order's (``late_read_share``); the other values are those the same seed draws for PyBullet.
     """
     if isinstance(count, bool) or not isinstance(count, int) or not 1 <= count <= MAX_VARIANTS:
         raise ValueError(f"--variants must be an integer from 1 to {MAX_VARIANTS}, got {count!r}.")
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise ValueError(f"--variant-seed must be an integer >= 0, got {seed!r}.")
+    if simulator not in VARIANT_SIMULATORS:
+        raise ValueError(f"--variant-simulator must be one of {', '.join(VARIANT_SIMULATORS)}, got {simulator!r}.")
     ranges = ranges or VariantRanges()
+    pyflyt = simulator == "pyflyt"
+    tracker_share = ranges.late_read_share if pyflyt else ranges.firmware_share
     variants = []
     for k in range(count):
         rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(k,)))
-        firmware, aero = rng.random(2) < (ranges.firmware_share, ranges.aero_share)
+        first, aero = rng.random(2) < (tracker_share, ranges.aero_share)
         drawn = {name: round(float(rng.uniform(*getattr(ranges, name))), 4) for name in RANGE_BOUNDS}
         variants.append(
             Variant(
                 name=f"variant {k:03d}",
-                controller="firmware" if firmware else "pid",
+                controller=_tracker(pyflyt, bool(first)),
                 physics="aero" if aero else "bare",
                 **drawn,
+                simulator=simulator,
             )
         )
     return tuple(variants)
+
+
+def _tracker(pyflyt: bool, coin: bool) -> str:
+    if pyflyt:
+        return "pyflyt 0.21.0" if coin else "pyflyt 0.22"
+    return "firmware" if coin else "pid"
 
 
 def fly_variants(config: TransferConfig, variants: Sequence[Variant]) -> list[CellResult]:
@@ -305,10 +347,12 @@ def write_variants(
         "cells": [asdict(r) for r in results],
     }
     json_path.write_text(json.dumps(meta, indent=2) + "\n")
+    where = " in PyFlyt" if variants and variants[0].simulator == "pyflyt" else ""
+    flown = f"seed {config.seed}, sensing {config.sensing}{_filter_words(config.safety_filter)}"
     md_path.write_text(
-        f"`{config.policy}` on {len(variants)} random Crazyflies (variant seed {variant_seed}; {config.episodes} "
-        f"episodes a variant and row, seed {config.seed}, sensing {config.sensing}{_filter_words(config.safety_filter)}"
-        f").\n\n{format_summary(results, variants)}\n\nEach variant, success % / mean landing error cm:\n\n"
+        f"`{config.policy}` on {len(variants)} random Crazyflies{where} (variant seed {variant_seed}; "
+        f"{config.episodes} episodes a variant and row, {flown}).\n\n{format_summary(results, variants)}\n\n"
+        "Each variant, success % / mean landing error cm:\n\n"
         f"{format_variant_table(results, variants)}\n"
     )
     return [csv_path, json_path, md_path]
@@ -321,8 +365,8 @@ def read_variants(path: str | Path) -> tuple[tuple[Variant, ...], list[CellResul
 
 
 def plot_variants(variants: Sequence[Variant], results: Sequence[CellResult], row: str) -> Any:
-    """Success on ``row`` against each drawn property, one panel each; the firmware tracker's variants in one
-    colour, our PID's in another, the 90 % line dashed. Returns the matplotlib figure."""
+    """Success on ``row`` against each drawn property, one panel each; one colour per tracker (the firmware's and our
+    PID, or PyFlyt's two read orders), the 90 % line dashed. Returns the matplotlib figure."""
     import matplotlib.pyplot as plt
 
     success = {r.column: 100 * r.success_rate for r in results if r.row == row}
@@ -331,7 +375,8 @@ def plot_variants(variants: Sequence[Variant], results: Sequence[CellResult], ro
     names = list(RANGE_BOUNDS)
     fig, axes = plt.subplots(1, len(names), figsize=(3.0 * len(names), 2.8), sharey=True)
     for ax, name in zip(axes, names, strict=True):
-        for controller, colour in (("firmware", "tab:blue"), ("pid", "tab:orange")):
+        trackers = sorted({v.controller for v in variants})
+        for controller, colour in zip(trackers, ("tab:blue", "tab:orange"), strict=False):
             chosen = [v for v in variants if v.controller == controller and v.name in success]
             scale = 1000.0 if name == "latency_s" else 1.0
             ax.scatter(

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -10,6 +11,7 @@ from marlander_lite.envs.options import EnvOptions
 from marlander_lite.envs.parallel_env import SwarmParallelEnv
 from marlander_lite.envs.vec_env import LandingVecEnv
 from marlander_lite.pyflyt_sim.simulator import READ_STATES, PyFlytSwarm, ReadState, resolve_control_hz
+from marlander_lite.pyflyt_sim.tuning import PyFlytTuning, build_tuning
 
 DRONE_MODELS = ("cf2x",)
 """PyFlyt ``QuadX`` models offered: its Crazyflie 2.x (PyFlyt ships others, not Crazyflies)."""
@@ -27,6 +29,9 @@ class PyFlytOptions(EnvOptions):
     read_state: ReadState = "after_physics"
     """When PyFlyt's controllers read the drone states: ``"after_physics"``, as PyFlyt does since 0.22, or
     ``"before_physics"``, one physics step late, as the pinned 0.21.0 does (``pyflyt_sim.simulator.aviary_class``)."""
+    tuning: PyFlytTuning | Mapping[str, Any] | None = None
+    """How every drone differs from PyFlyt's ``cf2x``: a :class:`~marlander_lite.pyflyt_sim.tuning.PyFlytTuning` or a
+    mapping of its fields (``{"mass_scale": 1.15, "latency_s": 0.06}``); None, the ``cf2x`` as PyFlyt ships it."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -38,11 +43,23 @@ class PyFlytOptions(EnvOptions):
                 '"after_physics" flies PyFlyt as releases since 0.22 do, "before_physics" as 0.21.0 does.'
             )
         resolve_control_hz(self.control_hz, self.task_config.policy_hz)
+        _ = self.tuning_config
+
+    @property
+    def tuning_config(self) -> PyFlytTuning:
+        """``tuning`` as a :class:`~marlander_lite.pyflyt_sim.tuning.PyFlytTuning`."""
+        return build_tuning(self.tuning)
 
     def make_simulator(self, num_envs: int = 1) -> PyFlytSwarm:
         """``num_envs`` PyFlyt swarms."""
         return PyFlytSwarm(
-            self.task_config, self.platform_config, num_envs, self.control_hz, self.drone_model, self.read_state
+            self.task_config,
+            self.platform_config,
+            num_envs,
+            self.control_hz,
+            self.drone_model,
+            self.read_state,
+            self.tuning_config,
         )
 
 
@@ -78,7 +95,9 @@ class PyFlytLandingEnv(SwarmLandingEnv):
     ## Arguments
     ``gymnasium.make("marlander_lite/PyFlytLanding-v0", **fields)`` with the fields of :class:`PyFlytOptions`
     (``num_drones, platform, platform_speed, task, sensing`` as every env, and ``control_hz=None,
-    drone_model="cf2x"``), or ``options=PyFlytOptions(...)``.
+    drone_model="cf2x", read_state="after_physics", tuning=None``), or ``options=PyFlytOptions(...)``. ``tuning``
+    changes the drone (:class:`~marlander_lite.pyflyt_sim.tuning.PyFlytTuning`: mass, command latency, loop gains,
+    tilt clamp, body drag).
     """
 
     def __init__(self, options: PyFlytOptions | None = None, **fields: Any) -> None:

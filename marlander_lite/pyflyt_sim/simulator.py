@@ -53,6 +53,7 @@ import numpy as np
 
 from marlander_lite.platforms import PlatformConfig
 from marlander_lite.pointmass.hosted import HostedDroneSwarm, control_periods
+from marlander_lite.pyflyt_sim.tuning import PyFlytTuning, apply_tuning
 from marlander_lite.task import CONTACT_NONE, TaskConfig
 
 PYFLYT_HINT = "the PyFlyt simulator needs the PyFlyt package: pip install -e .[pyflyt] (environment.lock pins it)"
@@ -134,6 +135,8 @@ class PyFlytSwarm(HostedDroneSwarm):
         read_state: ``"after_physics"`` (default): the controllers read the state the physics step has just made, as
             PyFlyt does since 0.22; ``"before_physics"``: as the pinned 0.21.0 does, one physics step late (see
             :func:`aviary_class`).
+        tuning: how every drone differs from PyFlyt's ``cf2x`` (:class:`~marlander_lite.pyflyt_sim.tuning.PyFlytTuning`:
+            mass, command latency, gains, tilt clamp, body drag); None, the ``cf2x`` as PyFlyt ships it.
     """
 
     def __init__(
@@ -144,8 +147,10 @@ class PyFlytSwarm(HostedDroneSwarm):
         control_hz: float | None = None,
         drone_model: str = "cf2x",
         read_state: ReadState = "after_physics",
+        tuning: PyFlytTuning | None = None,
     ) -> None:
         aviary = aviary_class(read_state)
+        tuning = tuning or PyFlytTuning()
         control_hz = resolve_control_hz(control_hz, task_config.policy_hz)
         periods = control_periods(control_hz, task_config.policy_hz)
         # The numpy engine: this class replaces the point mass's step, which the compiled engine would run.
@@ -166,17 +171,32 @@ class PyFlytSwarm(HostedDroneSwarm):
         """Rate of PyFlyt's flight controller (Hz)."""
         self.read_state = read_state
         """When the controllers read the drone states: ``"after_physics"`` (PyFlyt >= 0.22) or ``"before_physics"``."""
+        self.tuning = tuning
+        """How the drones differ from PyFlyt's ``cf2x``."""
+        for world in self.aviaries:
+            for quad in world.drones:
+                apply_tuning(world, quad, tuning)
+        # Commands in flight, one slot per control period of latency; a reset swarm's slots hold "stay still".
+        self._in_flight = np.zeros((tuning.delay_periods(control_hz), num_envs, n, 3))
+        self._next_slot = 0
         self._hover = self._settle_hover(round(control_hz))
 
     # ------------------------------------------------------------------ Simulator API
     def reset(self, env_ids: np.ndarray, rng: np.random.Generator) -> None:
         super().reset(env_ids, rng)
+        self._in_flight[:, np.atleast_1d(env_ids)] = 0.0
         for env in np.atleast_1d(env_ids):
             self._reseed(int(env), rng)
             for drone in range(self.task.num_drones):
                 self._take_off_fresh(int(env), drone)
 
     def _fly_period(self, velocity: np.ndarray, active: np.ndarray) -> None:
+        if len(self._in_flight):  # the command sent latency_s ago arrives; this one takes its slot
+            slot = self._next_slot
+            arriving = self._in_flight[slot].copy()
+            self._in_flight[slot] = velocity
+            velocity = arriving
+            self._next_slot = (slot + 1) % len(self._in_flight)
         for env, aviary in enumerate(self.aviaries):
             for drone, quad in enumerate(aviary.drones):
                 if self.motors_stopped[env, drone]:
