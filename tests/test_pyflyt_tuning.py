@@ -120,18 +120,18 @@ def test_without_body_drag_a_drone_with_stopped_motors_falls_at_g():
 
 
 @pytest.mark.parametrize(
-    ("tuning", "message"),
+    ("tuning", "error", "message"),
     [
-        ({"mass": 1.2}, "Unknown PyFlyt tuning field"),
-        ({"mass_scale": 3.0}, r"mass_scale must be a number in \[0.5, 2\]"),
-        ({"latency_s": -0.01}, r"latency_s must be a number in \[0, 0.5\]"),
-        ({"outer_gain_scale": 0.0}, r"outer_gain_scale must be a number in \(0, 5\]"),
-        ({"inner_gain_scale": float("nan")}, "inner_gain_scale must be a number"),
-        ({"tilt_limit_deg": 90.0}, r"tilt_limit_deg must be a number in \[5, 80\]"),
-        ({"body_drag": "no"}, "body_drag must be True or False"),
-        ("heavy", "tuning must be a PyFlytTuning, a mapping of its fields or None"),
+        ({"mass": 1.2}, TypeError, r"PyFlyt tuning got unknown option\(s\) \['mass'\]; allowed options: mass_scale"),
+        ({"mass_scale": 3.0}, ValueError, r"mass_scale must be a number in \[0.5, 2\]"),
+        ({"latency_s": -0.01}, ValueError, r"latency_s must be a number in \[0, 0.5\]"),
+        ({"outer_gain_scale": 0.0}, ValueError, r"outer_gain_scale must be a number in \(0, 5\]"),
+        ({"inner_gain_scale": float("nan")}, ValueError, "inner_gain_scale must be a number"),
+        ({"tilt_limit_deg": 90.0}, ValueError, r"tilt_limit_deg must be a number in \[5, 80\]"),
+        ({"body_drag": "no"}, ValueError, "body_drag must be True or False"),
+        ("heavy", TypeError, "tuning must be a PyFlytTuning, a mapping of its fields or None"),
     ],
 )
-def test_bad_tuning_says_what_is_allowed(tuning, message):
-    with pytest.raises(ValueError, match=message):
+def test_bad_tuning_says_what_is_allowed(tuning, error, message):
+    with pytest.raises(error, match=message):
         PyFlytOptions(tuning=tuning)

@@ -11,13 +11,14 @@ change. The gain names are PyFlyt's ``cf2x.yaml`` blocks.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+
+from marlander_lite.envs.options import config_from_mapping
 
 PYFLYT_TILT_LIMIT_DEG = math.degrees(0.4)
 """PyFlyt's ``cf2x`` tilt clamp: its ``lin_vel`` loop's output (an attitude setpoint, rad) is clipped at 0.4 rad."""
@@ -73,17 +74,11 @@ class PyFlytTuning:
 
 def build_tuning(tuning: PyFlytTuning | Mapping[str, Any] | None) -> PyFlytTuning:
     """The option ``tuning`` as a :class:`PyFlytTuning`: one, a mapping of its fields, or None for none."""
-    if tuning is None:
-        return PyFlytTuning()
-    if isinstance(tuning, PyFlytTuning):
-        return tuning
-    if isinstance(tuning, Mapping):
-        known = [f.name for f in dataclasses.fields(PyFlytTuning)]
-        unknown = sorted(set(tuning) - set(known))
-        if unknown:
-            raise ValueError(f"Unknown PyFlyt tuning field(s) {unknown}; allowed: {', '.join(known)}.")
-        return PyFlytTuning(**tuning)
-    raise ValueError(f"tuning must be a PyFlytTuning, a mapping of its fields or None, got {type(tuning).__name__}.")
+    if tuning is None or isinstance(tuning, PyFlytTuning):
+        return tuning or PyFlytTuning()
+    if not isinstance(tuning, Mapping):
+        raise TypeError(f"tuning must be a PyFlytTuning, a mapping of its fields or None, got {type(tuning).__name__}.")
+    return config_from_mapping(PyFlytTuning, tuning, "PyFlyt tuning")
 
 
 def apply_tuning(aviary: Any, quad: Any, tuning: PyFlytTuning) -> None:
