@@ -21,7 +21,7 @@ from marlander_lite.policy_file import PolicyContract, PolicyFileError
 from marlander_lite.swarm.filtered_policy import with_safety_filter
 from marlander_lite.swarm.safety_filter import SafetyFilterConfig, filter_actions
 from marlander_lite.task import TaskConfig
-from marlander_lite.training.presets import FINETUNE_PRESETS, get_preset
+from marlander_lite.training.presets import FINETUNE_PRESETS, QUICK_SLOW_TRACKERS_20M, get_preset
 
 POLICY = "data/policies/quick-cpu-slow-trackers-20m.safetensors"
 
@@ -207,7 +207,7 @@ def test_a_policy_file_names_its_command_frame():
 
 
 def test_the_preset_fine_tunes_the_quick_recipe_on_moving_pads_in_the_pad_frame():
-    preset, quick = get_preset("moving-slow-trackers"), get_preset("quick-cpu-slow-trackers")
+    preset, quick = get_preset("moving-slow-trackers"), QUICK_SLOW_TRACKERS_20M  # its shipped runs' source recipe
     assert "moving-slow-trackers" in FINETUNE_PRESETS  # marlander train refuses it without --init-from
     assert preset.task == {**quick.task, "command_frame": "pad", "pad_frame_lead": 0.5}
     assert preset.platform == "moving-arc" and tuple(preset.platform_speed) == (0.0, 0.6)

@@ -16,7 +16,14 @@ from marlander_lite.plotting import plot_training_curves, read_progress
 from marlander_lite.policy_file import load_policy
 from marlander_lite.task import OBSERVATION_OPTIONS
 from marlander_lite.training.evaluation import run_episodes, summarise
-from marlander_lite.training.presets import PRESETS, SLOW_TRACKERS_FIRST_VERSION, TrainConfig, get_preset
+from marlander_lite.training.presets import (
+    LATE_COMMANDS_FAST_VERTICAL,
+    PRESETS,
+    QUICK_SLOW_TRACKERS_20M,
+    SLOW_TRACKERS_FIRST_VERSION,
+    TrainConfig,
+    get_preset,
+)
 from marlander_lite.training.resume import TrainingInterrupted
 from marlander_lite.training.train import resume, train
 
@@ -74,14 +81,14 @@ def test_quick_cpu_smooth_is_the_recipe_its_shipped_cone2_runs_recorded():
 def test_quick_cpu_slow_trackers_is_quick_cpu_smooth_on_an_opening_slow_tracker_family_and_its_run_recorded_it():
     from pathlib import Path
 
-    preset = get_preset("quick-cpu-slow-trackers")
-    family = preset.dynamics["family"]
+    twenty_million = QUICK_SLOW_TRACKERS_20M  # the preset until 2026-12-01
+    family = twenty_million.dynamics["family"]
     assert family["velocity_time_constant"] == [0.08, 1.2] and family["ground_cushion"] == [0.0, 0.1]
     assert family["max_tilt_deg"] == [12.0, 35.0] and family["max_sink_acceleration"] == [3.0, 9.6]
     assert family["velocity_integral_gain"] == [0.0, 0.8]
-    assert (preset.family_opening, preset.family_opening_gate) == (0.15, 0.05)
-    assert preset.total_steps == 20_000_000
-    twelve_million = preset.replace(total_steps=get_preset("quick-cpu-smooth").total_steps)
+    assert (twenty_million.family_opening, twenty_million.family_opening_gate) == (0.15, 0.05)
+    assert twenty_million.total_steps == 20_000_000
+    twelve_million = twenty_million.replace(total_steps=get_preset("quick-cpu-smooth").total_steps)
     same_otherwise = twelve_million.replace(
         dynamics=get_preset("quick-cpu-smooth").dynamics, family_opening=0.0, family_opening_gate=0.0
     )
@@ -95,12 +102,31 @@ def test_quick_cpu_slow_trackers_is_quick_cpu_smooth_on_an_opening_slow_tracker_
         ("quick-cpu-slow-trackers-integral", twelve_million),
         ("quick-cpu-slow-trackers-integral-seed1", twelve_million.replace(seed=1)),
         ("quick-cpu-slow-trackers-integral-seed2", twelve_million.replace(seed=2)),
-        ("quick-cpu-slow-trackers-20m", preset),
-        ("quick-cpu-slow-trackers-20m-seed1", preset.replace(seed=1)),
-        ("quick-cpu-slow-trackers-20m-seed2", preset.replace(seed=2)),
+        ("quick-cpu-slow-trackers-20m", twenty_million),
+        ("quick-cpu-slow-trackers-20m-seed1", twenty_million.replace(seed=1)),
+        ("quick-cpu-slow-trackers-20m-seed2", twenty_million.replace(seed=2)),
     ):
         record = json.loads((runs / name / "config.json").read_text())
         assert TrainConfig.from_dict(record["train"]) == expected and record["preset"] == "quick-cpu-slow-trackers"
+
+
+def test_quick_cpu_slow_trackers_is_the_20m_version_on_late_commands_and_a_fast_vertical_loop_and_its_runs_record_it():
+    from pathlib import Path
+
+    preset = get_preset("quick-cpu-slow-trackers")
+    family = preset.dynamics["family"]
+    assert family["latency_s"] == [0.0, 0.08] and family["vertical_time_constant"] == [0.04, 0.2]
+    assert family["ground_cushion"] == [0.0, 0.02]
+    changed = {k for k, v in family.items() if v != QUICK_SLOW_TRACKERS_20M.dynamics["family"][k]}
+    assert changed == set(LATE_COMMANDS_FAST_VERTICAL) == {"latency_s", "vertical_time_constant", "ground_cushion"}
+    assert preset == QUICK_SLOW_TRACKERS_20M.replace(dynamics=preset.dynamics)  # nothing else changed
+    assert preset.total_steps == 20_000_000 and preset.torch_threads == 2
+    runs = Path(__file__).resolve().parents[1] / "data" / "runs"
+    for seed in (0, 1, 2):  # trained as `marlander train --preset quick-cpu-slow-trackers --seed S`, from scratch
+        name = "quick-cpu-slow-trackers-fast-vertical-20m" + (f"-seed{seed}" if seed else "")
+        record = json.loads((runs / name / "config.json").read_text())
+        assert TrainConfig.from_dict(record["train"]) == preset.replace(seed=seed), name
+        assert record["preset"] == "quick-cpu-slow-trackers" and record["finished"]["steps"] >= 20_000_000, name
 
 
 def test_paper_slow_trackers_is_the_quick_recipe_with_the_papers_network_and_its_run_recorded_it():
@@ -108,7 +134,7 @@ def test_paper_slow_trackers_is_the_quick_recipe_with_the_papers_network_and_its
 
     preset = get_preset("paper-slow-trackers")
     assert preset.net_arch == (512, 512, 256, 128)  # the paper's Fig. 3 network, written out
-    assert preset == get_preset("quick-cpu-slow-trackers").replace(net_arch=preset.net_arch)
+    assert preset == QUICK_SLOW_TRACKERS_20M.replace(net_arch=preset.net_arch)  # the quickstart's until 2026-12-01
     # Trained as `marlander train --preset quick-cpu-slow-trackers --net-arch 512 512 256 128`, before the preset.
     run = Path(__file__).resolve().parents[1] / "data" / "runs" / "paper-slow-trackers" / "config.json"
     record = json.loads(run.read_text())

@@ -204,7 +204,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--preset",
         choices=QUICKSTART_PRESETS,
         default=QUICKSTART_PRESETS[0],
-        help="quick-cpu-slow-trackers (default: 20 M steps, 7 min on 2 cores; lands in every static column of the "
+        help="quick-cpu-slow-trackers (default: 20 M steps, 7-10 min on 2 cores; lands in every static column of the "
         "transfer matrix, within 2.26 cm in all but PyFlyt's 0.21.0 order), quick-cpu-smooth (12 M steps, 4-13 min; "
         "lands in every column but PyFlyt's) or quick-cpu (6.5 min, floor pad, 2.7 cm from the pad centre)",
     )

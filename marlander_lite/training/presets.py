@@ -326,14 +326,16 @@ SLOW_TRACKERS_STEPS = 20_000_000
 preset's three seeds landed 2.41-3.18 cm from the pad centre in PyFlyt 0.22, with 20 M steps 1.79-2.10 cm
 (docs/transfer.md, "Twenty million steps")."""
 
-_QUICK_SLOW_TRACKERS = _QUICK_SMOOTH.replace(
+QUICK_SLOW_TRACKERS_20M = _QUICK_SMOOTH.replace(
     dynamics={"family": {**SLOW_TRACKERS_FIRST_VERSION["family"], "velocity_integral_gain": list(TRACKER_INTEGRATOR)}},
     total_steps=SLOW_TRACKERS_STEPS,
     family_opening=0.15,
     family_opening_gate=0.05,
 )
-"""``quick-cpu-slow-trackers``: ``quick-cpu-smooth`` on a family that reaches PyFlyt's slow loop, so that the
-quick policy lands alone in simulators whose tracker answers in up to a second, PyFlyt's included:
+"""``quick-cpu-slow-trackers`` until 2026-12-01 (shipped as ``quick-cpu-slow-trackers-20m``, ``-seed1``, ``-seed2``;
+the ``paper-slow-trackers`` and ``moving-slow-trackers`` runs were trained on it): ``quick-cpu-smooth`` on a family
+that reaches PyFlyt's slow loop, so that the quick policy lands alone in simulators whose tracker answers in up to a
+second, PyFlyt's included:
 
 * the family of :func:`slow_tracker_family` with horizontal tau up to 1.2 s (PyFlyt's fit: 0.76 s), and the thin
   ground cushion (:data:`THIN_CUSHION`). With the default family's cushion this family from scratch never learnt to
@@ -357,28 +359,46 @@ quick policy lands alone in simulators whose tracker answers in up to a second, 
 
 Everything else is ``quick-cpu-smooth``'s: two threads, the same network and aids. Alone on the 2-core VM the preset
 trained in 6.78 min (2026-11-30), its 12 M-step version in 3.93 min, its first version in 4.24 min and
-``quick-cpu-smooth`` in 3.79 min (2026-11-29), one run each (``benchmarks/results/bench_quick_cpu_*``). It is what
-``marlander quickstart`` trains."""
+``quick-cpu-smooth`` in 3.79 min (2026-11-29), one run each (``benchmarks/results/bench_quick_cpu_*``)."""
 
-_PAPER_SLOW_TRACKERS = _QUICK_SLOW_TRACKERS.replace(net_arch=PAPER_NET)
-"""``paper-slow-trackers``: the paper's network (:data:`PAPER_NET`, 512-512-256-128) trained by the quickstart's recipe,
-``quick-cpu-slow-trackers``, with nothing else changed (the 64-64 critic included). Its seed 0 (2026-11-30, 51.5 min
-on 2 cores; the family opened at 7.0 M steps, the small network's at 4.4 M) lands alone 96.0-99.5 % in every cell of
-the twelve-column transfer matrix, Wilson lower bounds 92.3 % and above, at 0.70-1.55 cm in eleven columns (PyFlyt
-0.22: 1.42 / 1.41 cm) and 3.61 / 3.45 cm in PyFlyt's 0.21.0 order; its seed 1 (73.1 min beside evaluations) 96.5-99.5 %,
-lower bounds 92.9 % and above, at 0.74-1.57 cm in those eleven columns; its seed 2 (84.5 min beside other work)
-94.5-100 %, lower bounds 90.4 % and above, 95 % or more in all cells but PyFlyt's 0.21.0-order floor (94.5 %), at
-0.71-1.72 cm in those eleven columns. ``paper-robust-smooth`` (the ``paper`` preset's
-recipe, fine-tuned with smooth commands) lands 0-2 % alone in PyFlyt, and an 8 M-step fine-tune of it on this family
-landed nobody (touchdowns at 0.6-1 m/s; docs/transfer.md)."""
+LATE_COMMANDS_FAST_VERTICAL = {
+    "latency_s": [0.0, 0.08],
+    "vertical_time_constant": [0.04, 0.2],
+    "ground_cushion": [0.0, 0.02],
+}
+"""What ``quick-cpu-slow-trackers`` changes in its family since 2026-12-01: command latency up to 80 ms (60 ms
+before), a vertical loop no slower than 0.2 s (0.3 s before) and a ground cushion of at most 0.02 g (0.1 g before).
+PyFlyt's vertical loop answers a -0.6 m/s step with -0.36 m/s after one policy step; with commands 40-80 ms late, the
+20 M-step version's last-centimetre pulses became touchdowns above 0.5 m/s and it landed in 16 of 40 random PyFlyt
+Crazyflies (docs/transfer.md, "Random PyFlyt Crazyflies: late commands on a fast vertical loop")."""
+
+_QUICK_SLOW_TRACKERS = QUICK_SLOW_TRACKERS_20M.replace(
+    dynamics={"family": {**QUICK_SLOW_TRACKERS_20M.dynamics["family"], **LATE_COMMANDS_FAST_VERTICAL}}
+)
+"""``quick-cpu-slow-trackers``: the 20 M-step version (:data:`QUICK_SLOW_TRACKERS_20M`: ``quick-cpu-smooth`` on a
+family of trackers up to 1.2 s slow with integral action, opening over 15 % of the run) on a family whose commands
+arrive up to 80 ms late on a fast vertical loop with almost no ground cushion (:data:`LATE_COMMANDS_FAST_VERTICAL`).
+RESULTS_PLACEHOLDER It is what ``marlander quickstart`` trains."""
+
+_PAPER_SLOW_TRACKERS = QUICK_SLOW_TRACKERS_20M.replace(net_arch=PAPER_NET)
+"""``paper-slow-trackers``: the paper's network (:data:`PAPER_NET`, 512-512-256-128) trained by the quickstart's recipe
+until 2026-12-01 (:data:`QUICK_SLOW_TRACKERS_20M`; not yet retrained on :data:`LATE_COMMANDS_FAST_VERTICAL`), with
+nothing else changed (the 64-64 critic included). Its seed 0 (2026-11-30, 51.5 min on 2 cores; the family opened at 7.0
+M steps, the small network's at 4.4 M) lands alone 96.0-99.5 % in every cell of the twelve-column transfer matrix,
+Wilson lower bounds 92.3 % and above, at 0.70-1.55 cm in eleven columns (PyFlyt 0.22: 1.42 / 1.41 cm) and 3.61 / 3.45 cm
+in PyFlyt's 0.21.0 order; its seed 1 (73.1 min beside evaluations) 96.5-99.5 %, lower bounds 92.9 % and above, at
+0.74-1.57 cm in those eleven columns; its seed 2 (84.5 min beside other work) 94.5-100 %, lower bounds 90.4 % and above,
+95 % or more in all cells but PyFlyt's 0.21.0-order floor (94.5 %), at 0.71-1.72 cm in those eleven columns.
+``paper-robust-smooth`` (the ``paper`` preset's recipe, fine-tuned with smooth commands) lands 0-2 % alone in PyFlyt,
+and an 8 M-step fine-tune of it on this family landed nobody (touchdowns at 0.6-1 m/s; docs/transfer.md)."""
 
 PAD_FRAME_LEAD = 0.5
 """``TaskConfig.pad_frame_lead`` of ``moving-slow-trackers`` (s). Trained with a 0.3 s lead, the fine-tune landed 90 /
 86 % on PyFlyt 0.22's moving arc / line; with 0.5 s 98 / 92 %, and 100 / 98 % through the firmware tracker, where a
 fine-tune trained without a lead and flown with 0.6 s fell to 94 / 92 % (50 episodes a cell; docs/transfer.md)."""
 
-_MOVING_SLOW_TRACKERS = _QUICK_SLOW_TRACKERS.replace(
-    task={**_QUICK_SLOW_TRACKERS.task, "command_frame": "pad", "pad_frame_lead": PAD_FRAME_LEAD},
+_MOVING_SLOW_TRACKERS = QUICK_SLOW_TRACKERS_20M.replace(
+    task={**QUICK_SLOW_TRACKERS_20M.task, "command_frame": "pad", "pad_frame_lead": PAD_FRAME_LEAD},
     total_steps=6_000_000,
     **_MOVING_PLATFORMS,
 )
@@ -387,7 +407,11 @@ _MOVING_SLOW_TRACKERS = _QUICK_SLOW_TRACKERS.replace(
 (``TaskConfig.command_frame`` ``"pad"``, led by :data:`PAD_FRAME_LEAD`): the loop carries each pad's velocity, so the
 policy keeps the static task it learnt and learns only what a pad's turns ask of a lagging tracker. Trained from
 scratch on moving pads in this frame (20 M steps, arcs or arcs and lines) it landed less and less precisely than the
-static policy flown in it, untrained (docs/transfer.md, "Commands relative to the pad")."""
+static policy flown in it, untrained (docs/transfer.md, "Commands relative to the pad"). Its family is
+:data:`QUICK_SLOW_TRACKERS_20M`'s, whose runs the shipped fine-tunes continue; from a run of the preset since
+2026-12-01, add ``--dynamics.family.latency-s 0 0.08 --dynamics.family.vertical-time-constant 0.04 0.2
+--dynamics.family.ground-cushion 0 0.02`` (:data:`LATE_COMMANDS_FAST_VERTICAL`) to keep training on that run's
+family."""
 
 PRESETS: dict[str, TrainConfig] = {
     "quick-cpu": _QUICK,
@@ -429,8 +453,9 @@ PRESET_NOTES: dict[str, str] = {
     "steps, 2 threads: lands in every static column of the transfer matrix but PyFlyt's, RotorPy included; 4-13 min on "
     "2 cores.",
     "quick-cpu-slow-trackers": "quick-cpu-smooth on a dynamics family that opens to trackers as slow as PyFlyt's "
-    "(tau up to 1.2 s, with integral action) with a thin ground cushion, 20 M steps: lands alone in every column of "
-    "the transfer matrix, PyFlyt's included; about 7 min on 2 cores (the quickstart's).",
+    "(tau up to 1.2 s, with integral action) and commands up to 80 ms late to fast, uncushioned vertical loops, 20 M "
+    "steps: lands alone in every column of the transfer matrix and in random PyFlyt Crazyflies; 7-10 min on 2 cores "
+    "(the quickstart's).",
     "paper": "the paper's 512-512-256-128 ReLU policy, 20 M steps, point mass (about 45 min on 2 cores).",
     "paper-slow-trackers": "the paper's 512-512-256-128 policy on the quick-cpu-slow-trackers recipe, 20 M steps: "
     "lands alone in every column of the transfer matrix; about 50 min on 2 cores.",
