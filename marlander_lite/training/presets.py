@@ -378,7 +378,13 @@ _QUICK_SLOW_TRACKERS = QUICK_SLOW_TRACKERS_20M.replace(
 """``quick-cpu-slow-trackers``: the 20 M-step version (:data:`QUICK_SLOW_TRACKERS_20M`: ``quick-cpu-smooth`` on a
 family of trackers up to 1.2 s slow with integral action, opening over 15 % of the run) on a family whose commands
 arrive up to 80 ms late on a fast vertical loop with almost no ground cushion (:data:`LATE_COMMANDS_FAST_VERTICAL`).
-RESULTS_PLACEHOLDER It is what ``marlander quickstart`` trains."""
+Its three seeds (``quick-cpu-slow-trackers-fast-vertical-20m``, ``-seed1``, ``-seed2``; the family opened at 3.2-3.8 M
+steps) land in 29-31 / 31-32 of 40 random PyFlyt Crazyflies (floor / UR10), every one PyFlyt 0.22 steps among them,
+where seeds 0 and 1 of the 20 M-step version landed in 13-16 / 15-19; 94.0-100 % in every cell of the twelve-column
+transfer matrix, at 0.50-1.94 cm in eleven columns and 3.58-4.09 cm in PyFlyt's 0.21.0 order (docs/transfer.md, "The
+quickstart's preset on late commands"). Alone on the 2-core VM it trained in 9.43 min on 2026-12-01, a day on which
+the VM ran the first 1 M steps at 41 k steps/s against 52 k on 2026-11-30 (``benchmarks/results/bench_quick_cpu_*``).
+It is what ``marlander quickstart`` trains."""
 
 _PAPER_SLOW_TRACKERS = QUICK_SLOW_TRACKERS_20M.replace(net_arch=PAPER_NET)
 """``paper-slow-trackers``: the paper's network (:data:`PAPER_NET`, 512-512-256-128) trained by the quickstart's recipe
