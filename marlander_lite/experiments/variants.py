@@ -374,8 +374,8 @@ def plot_variants(variants: Sequence[Variant], results: Sequence[CellResult], ro
         raise ValueError(f"No results for row {row!r}; rows: {sorted({r.row for r in results})}.")
     names = list(RANGE_BOUNDS)
     fig, axes = plt.subplots(1, len(names), figsize=(3.0 * len(names), 2.8), sharey=True)
+    trackers = sorted({v.controller for v in variants})
     for ax, name in zip(axes, names, strict=True):
-        trackers = sorted({v.controller for v in variants})
         for controller, colour in zip(trackers, ("tab:blue", "tab:orange"), strict=False):
             chosen = [v for v in variants if v.controller == controller and v.name in success]
             scale = 1000.0 if name == "latency_s" else 1.0
