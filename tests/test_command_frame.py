@@ -21,7 +21,13 @@ from marlander_lite.policy_file import PolicyContract, PolicyFileError
 from marlander_lite.swarm.filtered_policy import with_safety_filter
 from marlander_lite.swarm.safety_filter import SafetyFilterConfig, filter_actions
 from marlander_lite.task import TaskConfig
-from marlander_lite.training.presets import FINETUNE_PRESETS, QUICK_SLOW_TRACKERS_20M, get_preset
+from marlander_lite.training.presets import (
+    FINETUNE_PRESETS,
+    LATE_COMMANDS_FAST_VERTICAL,
+    MOVING_SLOW_TRACKERS_20M,
+    QUICK_SLOW_TRACKERS_20M,
+    get_preset,
+)
 
 POLICY = "data/policies/quick-cpu-slow-trackers-20m.safetensors"
 
@@ -207,13 +213,21 @@ def test_a_policy_file_names_its_command_frame():
 
 
 def test_the_preset_fine_tunes_the_quick_recipe_on_moving_pads_in_the_pad_frame():
-    preset, quick = get_preset("moving-slow-trackers"), QUICK_SLOW_TRACKERS_20M  # its shipped runs' source recipe
+    for preset, quick in (
+        (MOVING_SLOW_TRACKERS_20M, QUICK_SLOW_TRACKERS_20M),  # the version its first shipped runs were trained by
+        (get_preset("moving-slow-trackers"), get_preset("quick-cpu-slow-trackers")),  # the quickstart's family since
+    ):
+        assert preset.task == {**quick.task, "command_frame": "pad", "pad_frame_lead": 0.5}
+        assert preset.platform == "moving-arc" and tuple(preset.platform_speed) == (0.0, 0.6)
+        assert preset.total_steps == 6_000_000
+        moving = {"task", "platform", "platform_speed", "total_steps"}  # plates from the floor to 1 m, as before
+        assert {f for f in quick.__dataclass_fields__ if getattr(quick, f) != getattr(preset, f)} == moving
     assert "moving-slow-trackers" in FINETUNE_PRESETS  # marlander train refuses it without --init-from
-    assert preset.task == {**quick.task, "command_frame": "pad", "pad_frame_lead": 0.5}
-    assert preset.platform == "moving-arc" and tuple(preset.platform_speed) == (0.0, 0.6)
-    assert preset.total_steps == 6_000_000
-    moving = {"task", "platform", "platform_speed", "total_steps"}  # plates from the floor to 1 m, as before
-    assert {f for f in quick.__dataclass_fields__ if getattr(quick, f) != getattr(preset, f)} == moving
+    # The same fine-tune on the run's own family: only the three late-command ranges differ between the versions.
+    late = get_preset("moving-slow-trackers").dynamics["family"]
+    before = MOVING_SLOW_TRACKERS_20M.dynamics["family"]
+    assert {k for k, v in late.items() if v != before[k]} == set(LATE_COMMANDS_FAST_VERTICAL)
+    assert get_preset("moving-slow-trackers") == MOVING_SLOW_TRACKERS_20M.replace(dynamics={"family": late})
 
 
 def test_the_matrix_flies_a_static_policy_in_the_pad_frame(tmp_path):

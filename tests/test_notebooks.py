@@ -816,11 +816,46 @@ def check_08(shown: Shown) -> None:
     before = [c for name, row in counts.items() if name not in late for c in row]
     assert set(late) < set(table) and len(before) >= 4
     assert min(c for name in late for c in counts[name]) > max(before)
+    # Section 4v: the moving fine-tune on late commands. Each fine-tune's counts are its csv's; the worst static cell of
+    # each one on late commands is above every earlier one's; the random-PyFlyt counts on the moving rows are the
+    # variant runs'.
+    moving_late = ("moving-slow-trackers-fast-vertical", "moving-slow-trackers-fast-vertical-seed1")
+    static_worsts = {}
+    for name in ("moving-slow-trackers", "moving-slow-trackers-seed1", *moving_late):
+        cells = transfer_csv(name)
+        static = [c for c in cells if c["row"] in ("floor", "UR10")]
+        moving = [c for c in cells if c["row"].startswith(("arc", "line"))]
+        pattern = (
+            rf"^{name}: static cells at 95 % or more (\d+) of (\d+), worst (\S+) %; moving cells at 90 % or more "
+            r"(\d+) of (\d+), worst (\S+) % \(.+\); largest moving landing error (\S+) cm$"
+        )
+        [(static_95, n_static, static_worst, moving_90, n_moving, moving_worst, widest)] = shown.numbers(pattern)
+        assert n_static == len(static) == 24 and n_moving == len(moving) == 24, name
+        assert static_95 == sum(float(c["success_rate"]) >= 0.95 for c in static), name
+        assert moving_90 == sum(float(c["success_rate"]) >= 0.9 for c in moving), name
+        assert close(static_worst, 100 * min(float(c["success_rate"]) for c in static), 0.051), name
+        assert close(moving_worst, 100 * min(float(c["success_rate"]) for c in moving), 0.051), name
+        assert close(widest, max(float(c["landing_error_cm"]) for c in moving), 0.0051), name
+        static_worsts[name] = static_worst
+    assert min(static_worsts[n] for n in moving_late) > max(w for n, w in static_worsts.items() if n not in moving_late)
+    title = "| policy | random PyFlyt Crazyflies at 90 % or more, arc / line |"
+    table = markdown_rows(title + shown.text.split(title, 1)[1].split("\n\n", 1)[0])
+    assert [r["policy"] for r in table] == ["moving-slow-trackers", moving_late[0]]
+    for r in table:
+        lines = read_csv(RESULTS / "variants" / f"{r['policy']}-pyflyt-moving" / "variants.csv")
+        rows = [[c for c in lines if c["row"] == row] for row in ("arc 0.2-0.5 m/s", "line 0.2-0.5 m/s")]
+        landed = " / ".join(str(sum(float(c["success_rate"]) >= 0.9 for c in row)) for row in rows)
+        assert r["random PyFlyt Crazyflies at 90 % or more, arc / line"] == f"{landed} of 40", r
+    [(landed, flown, _)] = shown.numbers(
+        rf"^flown here: {moving_late[0]} on the held-out tracker's arc: (\d+) of (\d+) landed at (\S+) cm$"
+    )
+    assert flown >= 2 and landed >= 0.5 * flown
     # step responses (with and without RotorPy, and with PyFlyt), transfer bars, the pad's acceleration, the late
     # descent, the swing, the steeper cone's landing errors, PyFlyt held still, the opening family, the integrator,
     # the landing errors of 12 and 20 M steps in PyFlyt 0.22, the two networks on the same recipe, moving pads in the
-    # pad frame, success on random Crazyflies in PyBullet and in PyFlyt, the preset before and since 2026-12-01 there
-    assert shown.figures == 17
+    # pad frame, success on random Crazyflies in PyBullet and in PyFlyt, the preset before and since 2026-12-01 there,
+    # the moving fine-tune before and on late commands
+    assert shown.figures == 18
 
 
 def transfer_csv(name: str) -> list[dict[str, str]]:
