@@ -426,8 +426,8 @@ family the run learnt; the runs shipped before continue the 20 M-step runs on th
 (:data:`MOVING_SLOW_TRACKERS_20M`). Its two seeds from the preset's seeds 0 and 1
 (``moving-slow-trackers-fast-vertical``, ``-seed1``) land alone 94.5-100 % on static pads in all twelve columns, where
 both fine-tunes before landed 89.0 % on the held-out tracker's UR10, and 90 % or more in 21 / 20 of the 24 moving cells
-(before: 20 / 19); on the moving rows of 40 random PyFlyt Crazyflies seed 0 lands in 30 / 24 (arc / line) where the
-fine-tune before landed in 22 / 4, touching down too fast (docs/transfer.md, "The moving fine-tune on late
+(before: 20 / 19); on the moving rows of 40 random PyFlyt Crazyflies they land in 30 / 24 and 27 / 7 (arc / line)
+where the fine-tune before landed in 22 / 4, touching down too fast (docs/transfer.md, "The moving fine-tune on late
 commands")."""
 
 PRESETS: dict[str, TrainConfig] = {
