@@ -19,6 +19,7 @@ from marlander_lite.training.evaluation import run_episodes, summarise
 from marlander_lite.training.presets import (
     LATE_COMMANDS_FAST_VERTICAL,
     MOVING_SLOW_TRACKERS_20M,
+    PAPER_SLOW_TRACKERS_20M,
     PRESETS,
     QUICK_SLOW_TRACKERS_20M,
     SLOW_TRACKERS_FIRST_VERSION,
@@ -130,16 +131,23 @@ def test_quick_cpu_slow_trackers_is_the_20m_version_on_late_commands_and_a_fast_
         assert record["preset"] == "quick-cpu-slow-trackers" and record["finished"]["steps"] >= 20_000_000, name
 
 
-def test_paper_slow_trackers_is_the_quick_recipe_with_the_papers_network_and_its_run_recorded_it():
+def test_paper_slow_trackers_is_the_quickstart_preset_with_the_papers_network_and_its_runs_recorded_it():
     from pathlib import Path
 
     preset = get_preset("paper-slow-trackers")
     assert preset.net_arch == (512, 512, 256, 128)  # the paper's Fig. 3 network, written out
-    assert preset == QUICK_SLOW_TRACKERS_20M.replace(net_arch=preset.net_arch)  # the quickstart's until 2026-12-01
-    # Trained as `marlander train --preset quick-cpu-slow-trackers --net-arch 512 512 256 128`, before the preset.
-    run = Path(__file__).resolve().parents[1] / "data" / "runs" / "paper-slow-trackers" / "config.json"
-    record = json.loads(run.read_text())
-    assert TrainConfig.from_dict(record["train"]) == preset and record["preset"] == "quick-cpu-slow-trackers"
+    assert preset == get_preset("quick-cpu-slow-trackers").replace(net_arch=preset.net_arch)  # nothing else changed
+    assert PAPER_SLOW_TRACKERS_20M == QUICK_SLOW_TRACKERS_20M.replace(net_arch=preset.net_arch)  # until 2026-12-01
+    runs = Path(__file__).resolve().parents[1] / "data" / "runs"
+    # Trained as `marlander train --preset quick-cpu-slow-trackers --net-arch 512 512 256 128`, before either preset.
+    record = json.loads((runs / "paper-slow-trackers" / "config.json").read_text())
+    assert TrainConfig.from_dict(record["train"]) == PAPER_SLOW_TRACKERS_20M
+    assert record["preset"] == "quick-cpu-slow-trackers"
+    # Trained as `marlander train --preset paper-slow-trackers` with the three late-command ranges on the command line
+    # (`--dynamics.family.latency-s 0 0.08 ...`), before the preset had them.
+    record = json.loads((runs / "paper-slow-trackers-fast-vertical" / "config.json").read_text())
+    assert TrainConfig.from_dict(record["train"]) == preset and record["preset"] == "paper-slow-trackers"
+    assert record["finished"]["steps"] >= 20_000_000
 
 
 @pytest.mark.parametrize(
@@ -150,6 +158,7 @@ def test_paper_slow_trackers_is_the_quick_recipe_with_the_papers_network_and_its
         ("paper-moving-slow-trackers", "paper-slow-trackers", 0, 2),
         ("moving-slow-trackers-fast-vertical", "quick-cpu-slow-trackers-fast-vertical-20m", 0, 2),
         ("moving-slow-trackers-fast-vertical-seed1", "quick-cpu-slow-trackers-fast-vertical-20m-seed1", 1, 2),
+        ("paper-moving-slow-trackers-fast-vertical", "paper-slow-trackers-fast-vertical", 0, 2),
     ],
 )
 def test_the_shipped_moving_slow_trackers_runs_are_their_preset_continued_from_a_shipped_run(
