@@ -101,9 +101,12 @@ def plot_speed(rows: Sequence[SummaryRow], title: str = "") -> Figure:
             speed = np.array([condition(r.cell).speed for r in cells])
             s = [r.summary for r in cells]
             rate = np.array([x.success_rate for x in s]) * 100
+            # Clipped at 0: at 0 or 100 % success the Wilson bound lands a rounding error beyond the rate.
             rate_err = np.array([[x.success_rate - x.success_low, x.success_high - x.success_rate] for x in s]).T * 100
+            rate_err = np.clip(rate_err, 0.0, None)
             err = np.array([x.error_mean_cm for x in s])
             err_ci = np.array([[x.error_mean_cm - x.error_mean_low, x.error_mean_high - x.error_mean_cm] for x in s]).T
+            err_ci = np.clip(np.nan_to_num(err_ci), 0.0, None)
             label = f"{CONTROLLER_LABELS[name]}, {kind.split('-')[1]}"
             offset = 0.004 * (controllers.index(name) - (len(controllers) - 1) / 2) + (0.002 if style == "--" else 0)
             ax_s.errorbar(

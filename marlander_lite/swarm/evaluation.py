@@ -255,10 +255,13 @@ def evaluate_cell(
     task_changes: dict[str, Any] | None = None,
     simulator_options: dict[str, Any] | None = None,
     filter_settings: dict[str, float] | None = None,
+    pad_frame_lead: float | None = None,
 ) -> ScalingRow:
     """Fly ``trials`` trials of ``controller`` on swarms of ``num_drones`` and summarise them (``task_changes``:
     see :func:`evaluation_task`; ``simulator_options`` go to the swarm, e.g. ``{"controller": "firmware"}``;
-    ``filter_settings``: see :func:`actor_factory`)."""
+    ``filter_settings``: see :func:`actor_factory`; ``pad_frame_lead``: None, or the lead (s) a pad-frame policy is
+    flown with instead of the one it was trained with, ``TaskConfig.pad_frame_lead``, a flight setting as in
+    ``marlander transfer --pad-frame-lead``)."""
     if isinstance(trials, bool) or not isinstance(trials, int) or trials < 1:
         raise ValueError(f"trials must be an integer >= 1, got {trials!r}.")
     started = time.perf_counter()
@@ -266,7 +269,9 @@ def evaluate_cell(
     # A PyBullet CrazyflieSwarm holds one world: its trials are flown one after another.
     num_envs = 1 if simulator == "crazyflie" else min(num_envs, trials)
     if policy_path is not None:  # what the policy asks for in its input beyond eq. 2, and its command frame
-        task_changes = {**(task_changes or {}), **read_contract(policy_path).interface_options()}
+        task_changes = {**(task_changes or {}), **policy_task_changes(policy_path, pad_frame_lead)}
+    elif pad_frame_lead is not None:
+        raise ValueError(f"pad_frame_lead leads a pad-frame policy's commands; {controller!r} flies no policy.")
     episodes = make_episodes(
         num_drones, num_envs, seed, simulator, platform, task_changes=task_changes, **(simulator_options or {})
     )
@@ -290,6 +295,22 @@ def evaluate_cell(
         time.perf_counter() - started,
         condition_name(platform),
     )
+
+
+def policy_task_changes(policy_path: str | Path, pad_frame_lead: float | None = None) -> dict[str, Any]:
+    """What the policy file asks of the task beyond eq. 2 (its inputs, its command frame and lead), with its lead
+    replaced by ``pad_frame_lead`` (s) if given; a world-frame policy, which carries no pad velocity to lead, is
+    refused."""
+    changes = read_contract(policy_path).interface_options()
+    if pad_frame_lead is None:
+        return changes
+    if changes.get("command_frame", "world") != "pad":
+        raise ValueError(
+            f"A pad-frame lead of {pad_frame_lead:g} s was given, but {policy_path} commands in the world frame, "
+            "where no pad velocity is carried to lead: drop --pad-frame-lead, or fly a policy trained with "
+            "command_frame='pad' (e.g. data/policies/moving-slow-trackers-fast-vertical.safetensors)."
+        )
+    return {**changes, "pad_frame_lead": pad_frame_lead}
 
 
 def condition_name(platform: PlatformConfig) -> str:
@@ -402,6 +423,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="fixed: drone i lands on pad i (the paper); shortest: each trial's starts are paired with the pads by "
         "least total squared distance (CAPT's assignment, marlander_lite.pad_assignment)",
     )
+    parser.add_argument(
+        "--pad-frame-lead",
+        type=float,
+        metavar="SECONDS",
+        help="fly a pad-frame policy with this lead (TaskConfig.pad_frame_lead) instead of the one it was trained "
+        "with: about a tracker's velocity time constant (docs/transfer.md, 'The lead at flight time')",
+    )
     parser.add_argument("--force", action="store_true", help="overwrite STEM.csv/.json/.md already in --out")
 
 
@@ -442,6 +470,9 @@ def run(args: argparse.Namespace, program: str = "marlander swarm evaluate") -> 
         raise ValueError("--firmware and --held-out name two trackers: give one.")
     if (args.firmware or args.held_out) and args.simulator != "crazyflie":
         raise ValueError("--firmware and --held-out choose the PyBullet tracker: add --simulator crazyflie.")
+    lead = getattr(args, "pad_frame_lead", None)
+    for path in (p for p in (args.shared, args.centralised) if lead is not None and p):
+        policy_task_changes(path, lead)  # a world-frame policy given a lead: refused before any trial is flown
     check_results_free(args.out, args.stem, args.force)
     options = {"controller": "firmware"} if args.firmware else dict(HELD_OUT_TRACKER) if args.held_out else {}
     tracker = " (firmware tracker)" if args.firmware else " (held-out tracker)" if args.held_out else ""
@@ -473,6 +504,7 @@ def run(args: argparse.Namespace, program: str = "marlander swarm evaluate") -> 
         row = evaluate_cell(
             controller, n, args.trials, args.seed, path, args.num_envs, args.simulator, platform,
             task_changes={"pad_assignment": pairing}, simulator_options=options, filter_settings=settings,
+            pad_frame_lead=lead if path is not None else None,
         )  # fmt: skip
         print(_cell_text(row), f"({row.seconds:.0f} s)", flush=True)
         rows.append(row)
