@@ -27,6 +27,9 @@ the plate shuttling along a line at 0.4 m/s with the lab guide's moving-pad sett
     python benchmarks/rehearsal_campaign.py --config marlander_lite/deploy/example_lab.yaml \\
         --policy data/policies/moving-smooth-16m.safetensors --seeds 0-9 --platform moving-linear \\
         --platform-speed 0.4 --takeoff-height 1.4 --filter-settings cone_radius=0.04,reaction_time=0.35,pad_lead=0.2
+
+``--pad-frame-lead 0.3`` flies a pad-frame policy with that lead instead of its file's (the config's
+``limits.pad_frame_lead``).
 """
 
 from __future__ import annotations
@@ -67,6 +70,9 @@ def main(argv: list[str] | None = None) -> None:
         "--mocap-latency", type=float, default=None, help="simulation.latency_s: how late poses arrive (s)"
     )
     parser.add_argument("--takeoff-height", type=float, default=None, help="limits.takeoff_height (m)")
+    parser.add_argument(
+        "--pad-frame-lead", type=float, default=None, help="limits.pad_frame_lead (s) for a pad-frame policy"
+    )
     parser.add_argument(
         "--drones",
         type=int,
@@ -111,6 +117,11 @@ def main(argv: list[str] | None = None) -> None:
         lab = lab.replace(pad_assignment=args.pad_assignment)
     if args.takeoff_height is not None:
         lab = lab.replace(limits=dataclasses.replace(lab.limits, takeoff_height=args.takeoff_height))
+    if args.pad_frame_lead is not None:
+        try:
+            lab = lab.replace(limits=dataclasses.replace(lab.limits, pad_frame_lead=args.pad_frame_lead))
+        except ValueError as error:
+            parser.error(f"--pad-frame-lead: {error}")
     on_pad = all_down = safe = 0
     drones, errors, closest = 0, [], math.inf
     for seed in seed_range(args.seeds):
