@@ -445,7 +445,10 @@ def test_swarm_evaluate_flies_a_pad_frame_policy_with_the_lead_asked_for(tmp_pat
             ]
         )
     assert "commands in the world frame, where no pad velocity is carried to lead" in capsys.readouterr().err
-    assert not (tmp_path / "world").exists()
+    with pytest.raises(SystemExit):
+        main([*args[:-1], str(tmp_path / "long"), "--pad-frame-lead", "2.5"])
+    assert "The pad-frame lead must be from 0 to 2 s, got 2.5" in capsys.readouterr().err
+    assert not (tmp_path / "world").exists() and not (tmp_path / "long").exists()
 
 
 def test_a_longer_lead_puts_the_touchdowns_further_ahead_of_the_pad():

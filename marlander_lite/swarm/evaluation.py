@@ -49,7 +49,7 @@ from marlander_lite.simulators import SIMULATORS, simulator_entry
 from marlander_lite.swarm.filtered_policy import BatchAct, with_safety_filter, with_safety_filter_on
 from marlander_lite.swarm.policy import SharedPolicy
 from marlander_lite.swarm.safety_filter import SafetyFilterConfig, parse_settings
-from marlander_lite.task import TaskConfig
+from marlander_lite.task import MAX_PAD_FRAME_LEAD, TaskConfig
 
 SCALING_CONTROLLERS = ("shared", "shared-apf", "shared-filter", "centralised", "centralised-filter", "baseline")
 
@@ -304,6 +304,8 @@ def policy_task_changes(policy_path: str | Path, pad_frame_lead: float | None = 
     changes = read_contract(policy_path).interface_options()
     if pad_frame_lead is None:
         return changes
+    if not 0.0 <= pad_frame_lead <= MAX_PAD_FRAME_LEAD:  # NaN too
+        raise ValueError(f"The pad-frame lead must be from 0 to {MAX_PAD_FRAME_LEAD:g} s, got {pad_frame_lead!r}.")
     if changes.get("command_frame", "world") != "pad":
         raise ValueError(
             f"A pad-frame lead of {pad_frame_lead:g} s was given, but {policy_path} commands in the world frame, "
@@ -428,7 +430,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=float,
         metavar="SECONDS",
         help="fly a pad-frame policy with this lead (TaskConfig.pad_frame_lead) instead of the one it was trained "
-        "with: about a tracker's velocity time constant (docs/transfer.md, 'The lead at flight time')",
+        "with: about the tracker's velocity time constant (docs/transfer.md, 'Where a pad-frame drone touches down')",
     )
     parser.add_argument("--force", action="store_true", help="overwrite STEM.csv/.json/.md already in --out")
 
