@@ -16,7 +16,8 @@ import argparse
 
 import numpy as np
 
-from marlander_lite.experiments.transfer import build_episodes, cell_actor, find_column, find_row, trial_seed
+from marlander_lite.episodes import StepOutcome
+from marlander_lite.experiments.transfer import build_episodes, cell_actor, find_column, find_row, fly_episodes
 from marlander_lite.policy_file import load_policy
 
 ANGULAR_VELOCITY = slice(10, 13)  # eq. 2 per drone: position 0:3, quaternion 3:7, velocity 7:10, angular velocity
@@ -30,24 +31,19 @@ def fly(policy_path: str, episodes: int, motor_noise: bool, observe_rates: bool)
         for aviary in world.sim.aviaries:
             for quad in aviary.drones:
                 quad.motors.noise_ratio = quad.motors.noise_ratio * 0.0
-    act = cell_actor(policy, world, None)
-    successes, rates = 0, []
-    try:
-        for k in range(episodes):
-            world.seed(trial_seed(0, "floor", k))
-            obs = world.reset()
-            while True:
-                seen = np.array(obs, copy=True)
-                if not observe_rates:
-                    seen[..., ANGULAR_VELOCITY] = 0.0
-                outcome = world.step(act(seen))
-                rates.append(float(np.abs(world.sim.state().ang_vel[0]).max()))
-                if outcome.done[0]:
-                    break
-                obs = outcome.obs
-            successes += bool(outcome.success[0])
-    finally:
-        world.sim.close()
+    policy_act = cell_actor(policy, world, None)
+    rates: list[float] = []
+
+    def act(obs: np.ndarray) -> np.ndarray:
+        seen = np.array(obs, copy=True)
+        if not observe_rates:
+            seen[..., ANGULAR_VELOCITY] = 0.0
+        return policy_act(seen)
+
+    def watch(_outcome: StepOutcome) -> None:
+        rates.append(float(np.abs(world.sim.state().ang_vel[0]).max()))
+
+    successes = fly_episodes(world, act, "floor", episodes, watch=watch)
     return successes, float(np.median(rates))
 
 

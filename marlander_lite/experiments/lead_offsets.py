@@ -14,8 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from marlander_lite.experiments.protocol import trial_seed
-from marlander_lite.experiments.transfer import Row, build_episodes, cell_actor, find_column
+from marlander_lite.episodes import StepOutcome
+from marlander_lite.experiments.transfer import Row, build_episodes, cell_actor, find_column, fly_episodes
 from marlander_lite.policy_file import load_policy
 
 
@@ -44,28 +44,20 @@ def touchdown_offsets(
     policy = load_policy(policy_path)
     row = Row(f"{platform} {speed:g} m/s", platform, (speed, speed))
     world = build_episodes(policy, find_column(column), row, "vicon", pad_frame_lead=lead)
-    act = cell_actor(policy, world, None)
-    successes, along, across = 0, [], []
-    try:
-        for k in range(episodes):
-            world.seed(trial_seed(seed, row.name, k))
-            obs = world.reset()
-            touched = np.zeros(world.task.num_drones, dtype=bool)
-            while True:
-                outcome = world.step(act(obs))
-                contact = (outcome.landed_now[0] | outcome.crashed[0]) & ~touched
-                s = world.sim.state()
-                for i in np.flatnonzero(contact):
-                    offset, velocity = (s.pos[0, i] - s.pad_pos[0, i])[:2], s.pad_vel[0, i, :2]
-                    speed_now = float(np.linalg.norm(velocity))
-                    if speed_now > 1e-3:
-                        along.append(float(offset @ velocity) / speed_now)
-                        across.append(float(velocity[0] * offset[1] - velocity[1] * offset[0]) / speed_now)
-                touched |= contact
-                if outcome.done[0]:
-                    break
-                obs = outcome.obs
-            successes += bool(outcome.success[0])
-    finally:
-        world.sim.close()
+    along: list[float] = []
+    across: list[float] = []
+    touched = np.zeros(world.task.num_drones, dtype=bool)  # this episode's drones already down
+
+    def watch(outcome: StepOutcome) -> None:
+        contact = (outcome.landed_now[0] | outcome.crashed[0]) & ~touched
+        s = world.sim.state()
+        for i in np.flatnonzero(contact):
+            offset, velocity = (s.pos[0, i] - s.pad_pos[0, i])[:2], s.pad_vel[0, i, :2]
+            speed_now = float(np.linalg.norm(velocity))
+            if speed_now > 1e-3:
+                along.append(float(offset @ velocity) / speed_now)
+                across.append(float(velocity[0] * offset[1] - velocity[1] * offset[0]) / speed_now)
+        touched[:] = False if outcome.done[0] else touched | contact
+
+    successes = fly_episodes(world, cell_actor(policy, world, None), row.name, episodes, seed, watch)
     return TouchdownOffsets(episodes, successes, np.array(along), np.array(across))

@@ -344,6 +344,35 @@ def tracker_lag(safety_filter: dict[str, float] | None, cfg: task.TaskConfig) ->
     return None if safety_filter is None else SafetyFilterConfig.from_dict(safety_filter).tracker_lag(cfg.dt)
 
 
+def fly_episodes(
+    world: LandingEpisodes,
+    act: Callable[[np.ndarray], np.ndarray],
+    row_name: str,
+    episodes: int,
+    seed: int = 0,
+    watch: Callable[[StepOutcome], None] | None = None,
+) -> int:
+    """Fly ``episodes`` episodes of one cell with ``act`` (each seeded by :func:`trial_seed` from ``seed`` and
+    ``row_name``, as :func:`fly_cell` seeds them), calling ``watch(outcome)`` after every step; returns how many
+    ended with every drone landed. Closes ``world``'s simulator at the end."""
+    successes = 0
+    try:
+        for k in range(episodes):
+            world.seed(trial_seed(seed, row_name, k))
+            obs = world.reset()
+            while True:
+                outcome = world.step(act(obs))
+                if watch is not None:
+                    watch(outcome)
+                if outcome.done[0]:
+                    break
+                obs = outcome.obs
+            successes += bool(outcome.success[0])
+    finally:
+        world.sim.close()
+    return successes
+
+
 def cell_actor(
     policy: MLPPolicy,
     world: LandingEpisodes,
