@@ -28,6 +28,7 @@ from marlander_lite.pointmass.family import DynamicsFamily
 ROOT = Path(__file__).resolve().parents[1]
 NOTEBOOKS = ROOT / "notebooks"
 RESULTS = ROOT / "data" / "results"
+MOVING_ROWS = ("arc 0.2-0.5 m/s", "line 0.2-0.5 m/s")
 PAD_RADIUS_CM = 10.0  # PlateGeometry.pad_radius: a landing farther from the pad centre is a crash
 TOUCHDOWN_SPEED_MAX = 0.5  # m/s relative to the pad (TaskConfig.touchdown_speed_max)
 EXPECTED_TEXT = {
@@ -917,6 +918,16 @@ def check_08(shown: Shown) -> None:
         assert close(err_high, max(float(c["landing_error_cm"]) for c in ten), 0.0051), folder
         if (name, lead) == ("paper-moving-slow-trackers-fast-vertical", "0.3"):
             assert low >= 98.0, low
+    random_pybullet = {}
+    for folder, arc, line in re.findall(
+        r"^(\S+) on the moving rows of 40 random PyBullet Crazyflies: (\d+) / (\d+) of 40", shown.text, re.MULTILINE
+    ):
+        cells = read_csv(RESULTS / "variants" / folder / "variants.csv")
+        landed = [sum(float(c["success_rate"]) >= 0.9 for c in cells if c["row"] == row) for row in MOVING_ROWS]
+        assert [int(arc), int(line)] == landed, folder
+        random_pybullet[folder] = landed
+    trained, led = random_pybullet.values()
+    assert len(random_pybullet) == 2 and all(a >= b for a, b in zip(led, trained, strict=True)), random_pybullet
     offsets = {}
     for line in (ROOT / "benchmarks" / "results" / "pad_frame_lead_2026-12-01.txt").read_text().splitlines():
         cells = [c.strip() for c in line.strip("|").split("|")]
