@@ -918,6 +918,16 @@ def check_08(shown: Shown) -> None:
         assert close(err_high, max(float(c["landing_error_cm"]) for c in ten), 0.0051), folder
         if (name, lead) == ("paper-moving-slow-trackers-fast-vertical", "0.3"):
             assert low >= 98.0, low
+    [(count, total, low, high)] = shown.numbers(
+        r"through the pad-frame settings, its own lead, 30 s flights: moving cells at 90 % or more (\d+) of (\d+), "
+        r"(\S+)-(\S+) %$"
+    )
+    cells = read_csv(
+        RESULTS / "transfer" / "paper-moving-slow-trackers-fast-vertical-wide-climb-filter-30s" / "transfer.csv"
+    )
+    rates = [100 * float(c["success_rate"]) for c in cells]
+    assert (count, total) == (sum(r >= 90.0 for r in rates), len(rates)) == (24, 24), (count, total)
+    assert close(low, min(rates), 0.051) and close(high, max(rates), 0.051)
     random_pybullet = {}
     for folder, arc, line in re.findall(
         r"^(\S+) on the moving rows of 40 random PyBullet Crazyflies: (\d+) / (\d+) of 40", shown.text, re.MULTILINE
