@@ -16,7 +16,10 @@ from __future__ import annotations
 import argparse
 import time
 
+import numpy as np
+
 from marlander_lite.experiments.lead_offsets import touchdown_offsets
+from marlander_lite.pad_frame_lead import lead_argument
 
 
 def main() -> None:
@@ -25,20 +28,23 @@ def main() -> None:
     parser.add_argument("--columns", default="point mass,PyBullet firmware,held-out DSL PID")
     parser.add_argument("--platform", default="moving-linear", choices=("moving-linear", "moving-arc"))
     parser.add_argument("--speed", type=float, default=0.5, help="UR10 tool speed (m/s)")
-    parser.add_argument("--leads", type=float, nargs="+", default=[0.0, 0.15, 0.3, 0.5])
+    parser.add_argument("--leads", type=lead_argument, nargs="+", default=[0.0, 0.15, 0.3, 0.5], help="seconds or auto")
     parser.add_argument("--episodes", type=int, default=40)
     args = parser.parse_args()
     print(f"{args.policy}, {args.platform} {args.speed:g} m/s, {args.episodes} episodes a cell, seed 0, Vicon")
-    print("| column | lead s | success | along-track cm (mean, sd; + ahead) | across-track cm (mean) | s |")
-    print("|---|---|---|---|---|---|")
+    print(
+        "| column | lead s | success | along-track cm (mean, sd; + ahead) | across-track cm (mean) "
+        "| lead at touchdown s (median) | s |"
+    )
+    print("|---|---|---|---|---|---|---|")
     for column in args.columns.split(","):
         for lead in args.leads:
             start = time.perf_counter()
             found = touchdown_offsets(args.policy, column, args.platform, args.speed, lead, args.episodes)
             along, across, seconds = 100 * found.along, 100 * found.across, time.perf_counter() - start
             print(
-                f"| {column} | {lead:g} | {found.successes} / {found.episodes} | {along.mean():+.2f}, "
-                f"{along.std():.2f} | {across.mean():+.2f} | {seconds:.0f} |",
+                f"| {column} | {lead} | {found.successes} / {found.episodes} | {along.mean():+.2f}, "
+                f"{along.std():.2f} | {across.mean():+.2f} | {np.median(found.leads):.2f} | {seconds:.0f} |",
                 flush=True,
             )
 

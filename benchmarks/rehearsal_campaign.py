@@ -29,7 +29,7 @@ the plate shuttling along a line at 0.4 m/s with the lab guide's moving-pad sett
         --platform-speed 0.4 --takeoff-height 1.4 --filter-settings cone_radius=0.04,reaction_time=0.35,pad_lead=0.2
 
 ``--pad-frame-lead 0.3`` flies a pad-frame policy with that lead instead of its file's (the config's
-``limits.pad_frame_lead``).
+``limits.pad_frame_lead``); ``--pad-frame-lead auto`` with the lead set in flight from the identified tracker.
 """
 
 from __future__ import annotations
@@ -43,6 +43,7 @@ import numpy as np
 from marlander_lite.deploy.config import load_lab_config
 from marlander_lite.deploy.rehearsal.run import rehearse
 from marlander_lite.pad_assignment import PAD_ASSIGNMENTS
+from marlander_lite.pad_frame_lead import lead_argument
 from marlander_lite.simulators import SIMULATORS
 from marlander_lite.swarm.safety_filter import parse_settings
 
@@ -71,7 +72,10 @@ def main(argv: list[str] | None = None) -> None:
     )
     parser.add_argument("--takeoff-height", type=float, default=None, help="limits.takeoff_height (m)")
     parser.add_argument(
-        "--pad-frame-lead", type=float, default=None, help="limits.pad_frame_lead (s) for a pad-frame policy"
+        "--pad-frame-lead",
+        type=lead_argument,
+        default=None,
+        help="limits.pad_frame_lead (s, or auto) for a pad-frame policy",
     )
     parser.add_argument(
         "--drones",

@@ -17,6 +17,7 @@ import numpy as np
 from marlander_lite import task, training_aids
 from marlander_lite.batch_layout import batch_full, batch_zeros
 from marlander_lite.observation_history import ObservationHistory
+from marlander_lite.pad_frame_lead import flight_leads, lead_tracker
 from marlander_lite.platforms import PlatformConfig
 from marlander_lite.rotations import vector_norm
 from marlander_lite.sensing import ObservationChannel, SensingConfig
@@ -202,6 +203,10 @@ class LandingEpisodes:
         reset: the lead of a pad-frame command (``TaskConfig.pad_frame_lead``)."""
         self._carried_pad_vel = np.zeros((e, n, 3))
         self._carried: np.ndarray | None = None  # this step's carried pad velocity, once formed
+        self.lead_tracker = lead_tracker(self.task)
+        """With ``TaskConfig.pad_frame_lead_share``: each env's velocity tracker, identified from the commands flown
+        and the observed velocities that followed (as the deployment loop identifies it from motion capture), which
+        sets the lead; a new episode starts from the prior. None for a fixed lead."""
         # The frames are stacked last, from what the policy would see now (TaskConfig.observation_history).
         self.history = ObservationHistory(self.task.observation_history, (e, n), self.task.frame_per_drone)
         self._channel_width = channel_width
@@ -250,16 +255,39 @@ class LandingEpisodes:
         the deployment loop's does) changes nothing: :meth:`step` adds the same array.
         """
         pad_vel = self.sim.state().pad_vel
-        lead = self.task.pad_frame_lead
-        if not lead:
+        if not self.leads_commands:
             return pad_vel
         if self._carried is None:
             self.carried_acceleration = acceleration_step(
                 self.carried_acceleration, self._carried_pad_vel, pad_vel, self.task.dt
             )
             self._carried_pad_vel = np.array(pad_vel)
-            self._carried = pad_vel + lead * self.carried_acceleration
+            leads = flight_leads(self.task, self.lead_tracker)
+            self._carried = pad_vel + leads[:, None, None] * self.carried_acceleration
         return self._carried
+
+    @property
+    def leads_commands(self) -> bool:
+        """Whether a pad-frame command's pad velocity is led (a fixed ``pad_frame_lead`` or one set in flight)."""
+        return bool(self.task.pad_frame_lead or self.lead_tracker is not None)
+
+    def pad_frame_leads(self) -> np.ndarray:
+        """The lead (s) of every env's next pad-frame command ``(num_envs,)``: ``TaskConfig.pad_frame_lead``, or with
+        ``pad_frame_lead_share`` that share of each env's tracker lag identified so far."""
+        return np.broadcast_to(flight_leads(self.task, self.lead_tracker), (self.num_envs,)).copy()
+
+    def _identify_tracker(self, seen: np.ndarray, env_ids: np.ndarray | None = None) -> None:
+        """Feed the lead's tracker identification the observed ``p`` and ``v`` of eq. 2 (``seen``, one frame per env
+        in ``env_ids``; None: every env after a step) and the pads' velocities."""
+        if self.lead_tracker is None:
+            return
+        pad_vel = self.sim.state().pad_vel
+        if env_ids is None:
+            self.lead_tracker.observe(seen[..., task.EQ2_POSITION], seen[..., task.EQ2_VELOCITY], pad_vel)
+        else:
+            self.lead_tracker.restart(
+                env_ids, seen[..., task.EQ2_POSITION], seen[..., task.EQ2_VELOCITY], pad_vel[env_ids]
+            )
 
     def _measure(self, s: SwarmState, command: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         rel_pos = s.pos - (s.pad_pos + self._goal_lift)
@@ -331,7 +359,8 @@ class LandingEpisodes:
         if self._observes_acceleration:
             self.pad_acceleration[ids] = 0.0
             self._seen_pad_vel[ids] = seen[..., PLATFORM_VELOCITY]
-        if self.task.pad_frame_lead:
+        self._identify_tracker(seen, ids)
+        if self.leads_commands:
             self.carried_acceleration[ids] = 0.0
             self._carried_pad_vel[ids] = self.sim.state().pad_vel[ids]
             if self._carried is not None:  # formed this step: a new episode's first command carries its pad as it is
@@ -372,6 +401,8 @@ class LandingEpisodes:
             raise ValueError(f"Action batch has {velocity.shape[0]} environments; expected {self.num_envs}.")
         if cfg.command_frame != "world":
             velocity = task.in_command_frame(velocity, cfg, self.carried_pad_velocity())
+        if self.lead_tracker is not None:
+            self.lead_tracker.commanded(velocity)
         self.sim.step(velocity)
         self._carried = None
         s = self.sim.state()
@@ -411,8 +442,10 @@ class LandingEpisodes:
             self.sim.land(landed_now)
         self.prev_dist = dist
         self.episode_return += reward
+        seen = self.channel.observe(obs, self.rng)
+        self._identify_tracker(seen)
         return StepOutcome(
-            obs=self.history.push(self._estimate_acceleration(self.channel.observe(obs, self.rng))),
+            obs=self.history.push(self._estimate_acceleration(seen)),
             reward=reward,
             drone_rewards=r_drones,
             terminated=terminated,

@@ -202,6 +202,11 @@ class TaskConfig:
     command as the deployment loop estimates it (:mod:`marlander_lite.swarm.pad_acceleration`). A tracker that lags
     by about ``T_lead`` then keeps up with a pad that brakes, reverses or turns, as the safety filter's ``pad_lead``
     does for world-frame policies. 0 to 2 s; 0: no lead."""
+    pad_frame_lead_share: float = 0.0
+    """Beyond the paper, with ``command_frame`` ``"pad"``: ``s`` > 0 sets the lead in flight, ``s`` times the velocity
+    tracker's time constant identified from the commands sent and the velocities that followed
+    (:mod:`marlander_lite.pad_frame_lead`); ``pad_frame_lead`` leads for the first half second. 0 to 2; 0: the fixed
+    ``pad_frame_lead``. A flight setting (``--pad-frame-lead auto``): no shipped policy was trained with it."""
     observation_history: int = 1
     """Beyond the paper: ``H``, how many of a drone's latest observation frames its observation holds, newest first
     (``H`` times :attr:`frame_per_drone` numbers; 1 to 8). A memoryless policy sees one instant; a few frames show it
@@ -273,6 +278,11 @@ class TaskConfig:
                 0.0 <= self.pad_frame_lead <= MAX_PAD_FRAME_LEAD
                 and (self.pad_frame_lead == 0.0 or self.command_frame == "pad"),
                 f"pad_frame_lead must be from 0 to {MAX_PAD_FRAME_LEAD:g} s, and above 0 only with command_frame='pad'",
+            ),
+            (
+                0.0 <= self.pad_frame_lead_share <= 2.0
+                and (self.pad_frame_lead_share == 0.0 or self.command_frame == "pad"),
+                "pad_frame_lead_share must be from 0 to 2, and above 0 only with command_frame='pad'",
             ),
             (
                 self.pad_assignment in PAD_ASSIGNMENTS,

@@ -447,7 +447,7 @@ def test_swarm_evaluate_flies_a_pad_frame_policy_with_the_lead_asked_for(tmp_pat
     assert "commands in the world frame, where no pad velocity is carried to lead" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main([*args[:-1], str(tmp_path / "long"), "--pad-frame-lead", "2.5"])
-    assert "The pad-frame lead must be from 0 to 2 s, got 2.5" in capsys.readouterr().err
+    assert "'2.5' is not a pad-frame lead: give seconds from 0 to 2, or 'auto'" in capsys.readouterr().err
     assert not (tmp_path / "world").exists() and not (tmp_path / "long").exists()
 
 

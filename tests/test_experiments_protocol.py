@@ -298,21 +298,23 @@ def test_a_pad_frame_policy_flies_the_lead_asked_for_and_a_lead_without_one_is_r
     args = ["reproduce", "--controllers", "marlander-plus", "--marlander-plus-policy", moving, "--trials", "20"]
     args += ["--conditions", "moving-arc-0.5", "--workers", "1", "--no-doc"]
     errors = {}
-    for name, lead in (("own", []), ("led", ["--pad-frame-lead", "0.3"])):
+    for name, lead in (("own", []), ("led", ["--pad-frame-lead", "0.3"]), ("auto", ["--pad-frame-lead", "auto"])):
         assert main([*args, *lead, "--out", str(tmp_path / name)]) == 0
         assert (tmp_path / name / "fig_speed.png").is_file()
         with open(tmp_path / name / "summary_by_condition.csv") as file:
             [row] = list(csv.DictReader(file))
         assert row["cell"] == "moving-arc-0.5" and row["successes"] == "20", row
         errors[name] = float(row["error_mean_cm"])
-    assert errors["led"] < 0.75 * errors["own"], errors
+    assert errors["led"] < 0.75 * errors["own"] and errors["auto"] < 0.75 * errors["own"], errors
     assert "--pad-frame-lead 0.3" in (tmp_path / "led" / "run.md").read_text()
     assert json.loads((tmp_path / "led" / "run.json").read_text())["config"]["pad_frame_lead"] == 0.3
+    assert "--pad-frame-lead auto" in (tmp_path / "auto" / "run.md").read_text()
+    assert json.loads((tmp_path / "auto" / "run.json").read_text())["config"]["pad_frame_lead"] == "auto"
     with pytest.raises(SystemExit):
         main(["reproduce", "--controllers", "baseline", "--pad-frame-lead", "0.3", "--out", str(tmp_path / "none")])
     assert "no controller of this run (baseline) flies one" in capsys.readouterr().err
     assert not (tmp_path / "none").exists()
-    with pytest.raises(ValueError, match="pad_frame_lead must be None or 0 to 2 s"):
+    with pytest.raises(ValueError, match="seconds from 0 to 2, or 'auto'"):
         ProtocolConfig(pad_frame_lead=-0.1)
 
 

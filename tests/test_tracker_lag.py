@@ -347,3 +347,27 @@ def test_a_rehearsal_logs_the_velocity_step_it_identified_and_lands() -> None:
         step = float(re.findall(r"velocity step (\d+\.\d+) m/s", message)[0])
         assert latency == 0.0
         assert step == pytest.approx(0.5 * max(1.0, lag / 0.2), abs=0.02)  # two decimals of each
+
+
+def test_restart_begins_the_envs_given_afresh_and_keeps_the_others() -> None:
+    """A new episode in one env of a batch (``LandingEpisodes.reset(ids)``): that env is the prior again and its next
+    sample starts from its new state, as if the jump had been detected; the other env keeps its 0.8 s."""
+    lag, plant = TrackerLag(prior=0.24, dt=DT), FirstOrderTracker([0.8, 0.8])
+    fly(lag, plant, steps=240)
+    plant.p[1, :, :2] += 0.1  # a start 10 cm away: too close for the jump detection to see a new episode
+    plant.v[1] = 0.0
+    lag.restart(np.array([1]), plant.p[1:], plant.v[1:])
+    np.testing.assert_allclose(lag.time_constant(), [0.8, 0.24], rtol=0.02)
+    identified = fly(lag, plant, steps=240, seed=1)
+    np.testing.assert_allclose(identified, 0.8, rtol=0.02)
+
+
+def test_restart_before_any_sample_must_name_every_env() -> None:
+    still = np.zeros((2, 1, 3))
+    still[..., 2] = 1.0
+    lag = TrackerLag(prior=0.24, dt=DT)
+    with pytest.raises(ValueError, match=r"before the first observe\(\) must restart every env"):
+        lag.restart(np.array([1]), still[1:], still[1:])
+    lag.restart(np.arange(2), still, np.zeros_like(still))
+    lag.commanded(np.zeros_like(still))  # the state is recorded: a command may follow
+    np.testing.assert_allclose(lag.time_constant(), [0.24, 0.24])

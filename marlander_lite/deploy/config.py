@@ -56,6 +56,7 @@ from marlander_lite.deploy.sections import (
     expand_named_filter_settings,
 )
 from marlander_lite.pad_assignment import PadAssignment
+from marlander_lite.pad_frame_lead import describe_lead, lead_changes
 from marlander_lite.platforms import PlateGeometry
 from marlander_lite.policy_file import MLPPolicy, PolicyFileError, load_policy, read_contract
 from marlander_lite.task import TaskConfig
@@ -224,6 +225,7 @@ class LabConfig:
         observation_history: int = 1,
         command_frame: str = "world",
         pad_frame_lead: float = 0.0,
+        pad_frame_lead_share: float = 0.0,
     ) -> TaskConfig:
         """The MDP constants the policy must have been trained with.
 
@@ -240,6 +242,7 @@ class LabConfig:
             observation_history=observation_history,
             command_frame=command_frame,  # type: ignore[arg-type]  # TaskConfig checks it
             pad_frame_lead=pad_frame_lead,
+            pad_frame_lead_share=pad_frame_lead_share,
         )
 
     def policy_options(self, options: dict[str, Any]) -> dict[str, Any]:
@@ -251,11 +254,11 @@ class LabConfig:
             return dict(options)
         if options.get("command_frame", "world") != "pad":
             raise ConfigError(
-                f"limits.pad_frame_lead is {lead} s, but this policy commands velocities in the world frame, which "
-                "carry no pad velocity to lead; remove limits.pad_frame_lead, or fly a pad-frame policy (e.g. "
-                "data/policies/moving-slow-trackers.safetensors)."
+                f"limits.pad_frame_lead is {describe_lead(lead)}, but this policy commands velocities in the world "
+                "frame, which carry no pad velocity to lead; remove limits.pad_frame_lead, or fly a pad-frame policy "
+                "(e.g. data/policies/moving-slow-trackers.safetensors)."
             )
-        return {**options, "pad_frame_lead": float(lead)}
+        return {**options, **lead_changes(lead)}
 
     def with_drones(self, num_drones: int, geometry: PlateGeometry | None = None, body: str = "plate") -> LabConfig:
         """A copy flying ``num_drones`` drones ``cf1 ... cfN``, each on its own pad of ``geometry`` on body ``body``.

@@ -56,7 +56,8 @@ from marlander_lite.rotations import tilt_deg
 
 LATENCY_LOG_STEP = 0.05
 """s: a ``tracker_lag`` event is logged each time the identified latency compensation has moved this far from the one
-last logged (the filter's ``identified_lag_share``): the log shows what the flight identified, not every step."""
+last logged (the filter's ``identified_lag_share``), and so for the pad-frame lead set from it (``limits.pad_frame_lead:
+auto``): the log shows what the flight identified, not every step."""
 STEP_LOG_STEP = 0.1
 """m/s: so for the velocity step that the identified lag scales (the filter's ``low_velocity_step_lag``)."""
 
@@ -118,6 +119,8 @@ class Mission(LandingControl):
         """The filter's latency compensation (s) the last ``tracker_lag`` event reported (the setting at first)."""
         self.logged_step = self.runner.velocity_step
         """The filter's velocity step (m/s) the last ``tracker_lag`` event reported (the setting at first)."""
+        self.logged_lead = self.runner.pad_frame_lead
+        """The pad-frame lead (s) the last ``tracker_lag`` event reported (the policy's or the config's at first)."""
 
     # ------------------------------------------------------------------ read-only views
     @property
@@ -393,15 +396,21 @@ class Mission(LandingControl):
             return  # the safety rules hover; the policy waits for fresh data
         out = self.output
         out.obs = self.runner.observe(est)
-        latency, step = self.runner.latency_compensation, self.runner.velocity_step
-        if abs(latency - self.logged_latency) >= LATENCY_LOG_STEP or abs(step - self.logged_step) >= STEP_LOG_STEP:
-            assert self.runner.tracker_lag is not None  # both change only as the lag is identified
+        latency, step, lead = self.runner.latency_compensation, self.runner.velocity_step, self.runner.pad_frame_lead
+        if (
+            abs(latency - self.logged_latency) >= LATENCY_LOG_STEP
+            or abs(step - self.logged_step) >= STEP_LOG_STEP
+            or abs(lead - self.logged_lead) >= LATENCY_LOG_STEP
+        ):
+            assert self.runner.tracker_lag is not None  # all three change only as the lag is identified
             lag = float(self.runner.tracker_lag.time_constant()[0])
             message = f"velocity tracker lag identified: {lag:.2f} s; latency compensation {latency:.2f} s"
             if step != self.logged_step:
                 message += f"; velocity step {step:.2f} m/s"
+            if lead != self.logged_lead:
+                message += f"; pad-frame lead {lead:.2f} s"
             self.event("tracker_lag", message)
-            self.logged_latency, self.logged_step = latency, step
+            self.logged_latency, self.logged_step, self.logged_lead = latency, step, lead
         try:
             out.action, velocity = self.runner.act(out.obs, est.goal, self.runner.carried_pad_velocity(est))
             out.unfiltered = velocity

@@ -41,6 +41,7 @@ import numpy as np
 from marlander_lite import task
 from marlander_lite.deploy.estimation import SwarmEstimate
 from marlander_lite.observation_history import ObservationHistory
+from marlander_lite.pad_frame_lead import flight_leads, lead_tracker
 from marlander_lite.swarm.observation import shared_observations
 from marlander_lite.swarm.pad_acceleration import PadAcceleration
 from marlander_lite.swarm.safety_filter import SafetyFilterConfig, filter_commands
@@ -102,7 +103,8 @@ class PolicyRunner:
         """The pads' acceleration a policy with ``TaskConfig.observe_platform_acceleration`` reads, estimated from the
         estimates' pad velocities as the simulators estimate it from observed ones; None for other policies."""
         self._acceleration_at: tuple[float, np.ndarray] | None = None
-        self.carried_acceleration = PadAcceleration() if task_config.pad_frame_lead > 0 else None
+        leads = task_config.pad_frame_lead > 0 or task_config.pad_frame_lead_share > 0
+        self.carried_acceleration = PadAcceleration() if leads else None
         """The pads' acceleration that leads the pad velocity a pad-frame command carries
         (``TaskConfig.pad_frame_lead``), estimated as the simulators estimate it; None without a lead."""
         self._carried_at: tuple[float, np.ndarray] | None = None
@@ -114,10 +116,11 @@ class PolicyRunner:
         self._history_at: float | None = None
         self._identified_latency: float | None = None
         self._identified_step: float | None = None
-        self.tracker_lag = None if safety_filter is None else safety_filter.tracker_lag(task_config.dt)
+        filter_lag = None if safety_filter is None else safety_filter.tracker_lag(task_config.dt)
+        self.tracker_lag = filter_lag or lead_tracker(task_config)
         """The velocity tracker's time constant, identified from the setpoints sent (:attr:`previous_command`) and the
         velocities that followed, once per policy step; None unless the filter's ``identified_lag_share`` or
-        ``low_velocity_step_lag`` is set."""
+        ``low_velocity_step_lag``, or the task's ``pad_frame_lead_share`` (``limits.pad_frame_lead: auto``), is set."""
         self._lag_at: float | None = None
 
     @property
@@ -141,7 +144,6 @@ class PolicyRunner:
         sample when it lasted one policy period (within half of one); otherwise none is taken."""
         if self.tracker_lag is None or self._lag_at == est.t:
             return
-        assert self.safety_filter is not None
         lag = self.tracker_lag
         if self._lag_at is not None:
             lag.commanded(self.previous_command[None])
@@ -150,6 +152,8 @@ class PolicyRunner:
         self._lag_at = est.t
         rel_goal, rel_vel = (est.pos - est.goal)[None], (est.vel - est.pad_vel)[None]
         time_constant = float(lag.observe(rel_goal, rel_vel, est.pad_vel[None])[0])
+        if self.safety_filter is None:
+            return
         if self.safety_filter.identified_lag_share > 0:
             self._identified_latency = min(self.safety_filter.identified_lag_share * time_constant, 0.5)
         if self.safety_filter.low_velocity_step_lag > 0:
@@ -225,7 +229,14 @@ class PolicyRunner:
                 self._carried_at = (est.t, self.carried_acceleration.update(est.pad_vel, est.t))
             except ValueError as error:
                 raise InvalidAction(str(error)) from None
-        return est.pad_vel + self.task.pad_frame_lead * self._carried_at[1]
+        return est.pad_vel + self.pad_frame_lead * self._carried_at[1]
+
+    @property
+    def pad_frame_lead(self) -> float:
+        """The lead (s) of the next pad-frame command: ``TaskConfig.pad_frame_lead``, or with ``pad_frame_lead_share``
+        that share of the tracker lag identified so far (:meth:`identify_lag`; :mod:`marlander_lite.pad_frame_lead`)."""
+        tracker = self.tracker_lag if self.task.pad_frame_lead_share > 0 else None
+        return float(flight_leads(self.task, tracker)[0])
 
     def policy_input(self, obs: np.ndarray, goals: np.ndarray | None = None) -> np.ndarray:
         """What the network reads: ``(1, 13 N)`` for a centralised policy, ``(N, 13 + 7 k)`` for a shared one.

@@ -176,11 +176,13 @@ class LimitsConfig:
     """How long a drone must linger above its pad before the hand-over (s)."""
     max_flight_s: Annotated[Real, Field(ge=1, le=600)] = 60.0
     """After this long under the policy, every drone still flying is landed (s)."""
-    pad_frame_lead: Annotated[Real, Field(ge=0, le=MAX_PAD_FRAME_LEAD)] | None = None
+    pad_frame_lead: Annotated[Real, Field(ge=0, le=MAX_PAD_FRAME_LEAD)] | Literal["auto"] | None = None
     """Only for a policy whose commands are relative to its pad (``TaskConfig.command_frame`` ``"pad"``): how far ahead
     (s) the pad velocity its commands carry is led by the pad's acceleration, instead of the lead in the policy file;
-    None: the file's. A tracker that answers at once wants less lead than a slow one: flown with 0.3 s instead of its
-    0.5 s, `moving-slow-trackers` landed 90 % or more in 22 of the 24 moving cells of its transfer matrix instead of 20
+    None: the file's; ``auto``: 0.6 times your drones' velocity-tracker lag, identified in flight from the setpoints
+    sent and the velocities motion capture measures (:mod:`marlander_lite.pad_frame_lead`; the file's lead until then).
+    A tracker that answers at once wants less lead than a slow one: flown with 0.3 s instead of its 0.5 s,
+    `moving-slow-trackers` landed 90 % or more in 22 of the 24 moving cells of its transfer matrix instead of 20
     (docs/transfer.md, "The safety filter on a pad-frame policy, and the lead a tracker wants")."""
 
 

@@ -44,6 +44,7 @@ from marlander_lite.experiments.protocol import (
     record_trajectory,
     run_protocol,
 )
+from marlander_lite.pad_frame_lead import lead_argument
 from marlander_lite.training.provenance import file_sha256
 
 RESULTS_ROOT = Path("data/results")
@@ -89,6 +90,7 @@ def _trials(text: str) -> int | str:
 
 
 PROTOCOL_FIELDS = {
+    "pad_frame_lead": FieldOption(parse=lead_argument, metavar="S|auto"),
     "controllers": FieldOption(
         parse=_choices(CONTROLLERS, "controller(s)"),
         metavar="NAMES",

@@ -15,7 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from marlander_lite.episodes import StepOutcome
-from marlander_lite.experiments.transfer import Row, build_episodes, cell_actor, find_column, fly_episodes
+from marlander_lite.experiments.transfer import Column, Row, build_episodes, cell_actor, find_column, fly_episodes
+from marlander_lite.pad_frame_lead import PadFrameLead
 from marlander_lite.policy_file import load_policy
 
 
@@ -30,25 +31,39 @@ class TouchdownOffsets:
     """``(k,)`` offsets along the pad's horizontal velocity at touchdown (m); positive: ahead of the pad."""
     across: np.ndarray
     """``(k,)`` offsets across it (m), positive to the left of the pad's motion."""
+    leads: np.ndarray
+    """``(k,)`` the lead (s) the touchdown's last command was flown with: the one given, or ``"auto"``'s identified."""
 
 
 def touchdown_offsets(
-    policy_path: str, column: str, platform: str, speed: float, lead: float | None, episodes: int, seed: int = 0
+    policy_path: str,
+    column: str | Column,
+    platform: str,
+    speed: float,
+    lead: PadFrameLead | None,
+    episodes: int,
+    seed: int = 0,
 ) -> TouchdownOffsets:
-    """Fly ``episodes`` episodes of ``policy_path`` in the transfer matrix's ``column`` on a ``platform``
+    """Fly ``episodes`` episodes of ``policy_path`` in the transfer matrix's ``column`` (its name, or any
+    :class:`Column`) on a ``platform``
     (``moving-linear`` or ``moving-arc``) at tool ``speed`` (m/s), Vicon sensing, with its commands led by ``lead``
-    (s; None: the lead the policy was trained with). Touchdowns while the pad is at rest (turning back) have no
-    along-track direction and are left out."""
+    (s; None: the lead the policy was trained with; ``"auto"``: set in flight, :mod:`marlander_lite.pad_frame_lead`).
+    Touchdowns while the pad is at rest (turning back) have no along-track direction and are left out."""
     if platform not in ("moving-linear", "moving-arc"):
         raise ValueError(f"platform must be moving-linear or moving-arc, got {platform!r}: a pad at rest has no track.")
     policy = load_policy(policy_path)
     row = Row(f"{platform} {speed:g} m/s", platform, (speed, speed))
-    world = build_episodes(policy, find_column(column), row, "vicon", pad_frame_lead=lead)
+    column = column if isinstance(column, Column) else find_column(column)
+    world = build_episodes(policy, column, row, "vicon", pad_frame_lead=lead)
     along: list[float] = []
     across: list[float] = []
+    leads: list[float] = []
     touched = np.zeros(world.task.num_drones, dtype=bool)  # this episode's drones already down
 
+    flown_lead = world.pad_frame_leads()  # the lead of the step just flown: read before each step
+
     def watch(outcome: StepOutcome) -> None:
+        nonlocal flown_lead
         contact = (outcome.landed_now[0] | outcome.crashed[0]) & ~touched
         s = world.sim.state()
         for i in np.flatnonzero(contact):
@@ -57,7 +72,9 @@ def touchdown_offsets(
             if speed_now > 1e-3:
                 along.append(float(offset @ velocity) / speed_now)
                 across.append(float(velocity[0] * offset[1] - velocity[1] * offset[0]) / speed_now)
+                leads.append(float(flown_lead[0]))
         touched[:] = False if outcome.done[0] else touched | contact
+        flown_lead = world.pad_frame_leads()
 
     successes = fly_episodes(world, cell_actor(policy, world, None), row.name, episodes, seed, watch)
-    return TouchdownOffsets(episodes, successes, np.array(along), np.array(across))
+    return TouchdownOffsets(episodes, successes, np.array(along), np.array(across), np.array(leads))

@@ -40,10 +40,11 @@ from marlander_lite.experiments.controllers import (
 )
 from marlander_lite.experiments.metrics import TrialMetrics
 from marlander_lite.make import SimulatorName
+from marlander_lite.pad_frame_lead import PadFrameLead, describe_lead, lead_changes
 from marlander_lite.platforms import PlatformConfig, PlatformKind
 from marlander_lite.sensing import SensingConfig
 from marlander_lite.simulators import simulator_entry
-from marlander_lite.task import MAX_PAD_FRAME_LEAD, TaskConfig
+from marlander_lite.task import TaskConfig
 
 ConditionName = Literal[
     "static-floor",
@@ -151,10 +152,11 @@ class ProtocolConfig:
     """Worker processes; 1 runs everything in this process."""
     block_size: int = 10
     """Trials per unit of work; fixed, so the results do not depend on ``workers``."""
-    pad_frame_lead: float | None = None
+    pad_frame_lead: PadFrameLead | None = None
     """Beyond the paper: None, or the lead (s) the run's pad-frame policies fly with instead of their files'
-    (``TaskConfig.pad_frame_lead``), a flight setting as ``marlander transfer --pad-frame-lead`` and the lab config's
-    ``limits.pad_frame_lead``; 0 to 2 s, refused if no controller of the run flies a pad-frame policy."""
+    (``TaskConfig.pad_frame_lead``), or ``"auto"`` (set in flight from the identified tracker,
+    :mod:`marlander_lite.pad_frame_lead`), a flight setting as ``marlander transfer --pad-frame-lead`` and the lab
+    config's ``limits.pad_frame_lead``; 0 to 2 s, refused if no controller of the run flies a pad-frame policy."""
 
     def __post_init__(self) -> None:
         simulator_entry(self.simulator)  # an unknown name raises, listing the registered ones
@@ -174,10 +176,8 @@ class ProtocolConfig:
             raise ValueError(f"Unknown sensing {self.sensing!r}; allowed: {', '.join(SENSING_NAMES)}.")
         if not (np.isfinite(self.time_limit_s) and self.time_limit_s > 0):
             raise ValueError(f"time_limit_s must be > 0 s, got {self.time_limit_s!r}.")
-        if self.pad_frame_lead is not None and not (0.0 <= self.pad_frame_lead <= MAX_PAD_FRAME_LEAD):
-            raise ValueError(
-                f"pad_frame_lead must be None or 0 to {MAX_PAD_FRAME_LEAD:g} s, got {self.pad_frame_lead!r}."
-            )
+        if self.pad_frame_lead is not None:
+            lead_changes(self.pad_frame_lead)  # seconds within range, or "auto"; else a ValueError saying so
         if self.workers < 1 or self.block_size < 1:
             raise ValueError(f"workers and block_size must be >= 1, got {self.workers} and {self.block_size}.")
         unknown = sorted(set(self.policy_paths) - set(POLICY_CONTROLLERS))
@@ -195,7 +195,7 @@ class ProtocolConfig:
         """
         observe = self.spec(controller_name).interface_options() if controller_name is not None else {}
         if self.pad_frame_lead is not None and observe.get("command_frame") == "pad":
-            observe = {**observe, "pad_frame_lead": self.pad_frame_lead}
+            observe = {**observe, **lead_changes(self.pad_frame_lead)}
         return TaskConfig(num_drones=self.num_drones, episode_seconds=self.time_limit_s, **observe)
 
     def sensing_config(self) -> SensingConfig:
@@ -348,9 +348,9 @@ def check_policies(config: ProtocolConfig) -> None:
         config.task(name).command_frame != "pad" for name in config.controllers
     ):
         raise ValueError(
-            f"pad_frame_lead {config.pad_frame_lead:g} s leads the commands of a pad-frame policy, and no controller "
-            f"of this run ({', '.join(config.controllers)}) flies one: drop --pad-frame-lead, or give a policy trained "
-            "with command_frame='pad' (e.g. --marlander-plus-policy "
+            f"pad_frame_lead {describe_lead(config.pad_frame_lead)} leads the commands of a pad-frame policy, and no "
+            f"controller of this run ({', '.join(config.controllers)}) flies one: drop --pad-frame-lead, or give a "
+            "policy trained with command_frame='pad' (e.g. --marlander-plus-policy "
             "data/policies/paper-moving-slow-trackers-fast-vertical.safetensors)."
         )
 

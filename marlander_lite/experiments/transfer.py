@@ -53,6 +53,7 @@ from marlander_lite.envs.options import policy_input
 from marlander_lite.episodes import LandingEpisodes, StepOutcome
 from marlander_lite.experiments.metrics import TrialMetrics, wilson_interval
 from marlander_lite.experiments.protocol import trial_seed
+from marlander_lite.pad_frame_lead import PadFrameLead, describe_lead, lead_changes
 from marlander_lite.policy_file import MLPPolicy, load_policy
 from marlander_lite.rotations import tilt_deg
 from marlander_lite.simulators import simulator_entry
@@ -204,7 +205,7 @@ def build_episodes(
     sensing: str,
     num_drones: int | None = None,
     command_frame: str | None = None,
-    pad_frame_lead: float | None = None,
+    pad_frame_lead: PadFrameLead | None = None,
     episode_seconds: float | None = None,
 ) -> LandingEpisodes:
     """One swarm of ``column``'s simulator on ``row``'s platform, with the policy's task and no training aid.
@@ -214,8 +215,8 @@ def build_episodes(
     task_fields = {**policy.contract.task, **training_aids.TRAINING_AIDS_OFF}
     if command_frame is not None:  # flown in another frame than trained (TransferConfig.command_frame)
         task_fields["command_frame"] = command_frame
-    if pad_frame_lead is not None:
-        task_fields["pad_frame_lead"] = pad_frame_lead
+    if pad_frame_lead is not None:  # seconds, or "auto": set in flight from the identified tracker
+        task_fields.update(lead_changes(pad_frame_lead))
     if episode_seconds is not None:  # a longer flight than the training episode (TransferConfig.episode_seconds)
         task_fields["episode_seconds"] = episode_seconds
     if policy.contract.is_shared:
@@ -243,7 +244,7 @@ def fly_cell(
     safety_filter: dict[str, float] | None = None,
     num_drones: int | None = None,
     command_frame: str | None = None,
-    pad_frame_lead: float | None = None,
+    pad_frame_lead: PadFrameLead | None = None,
     episode_seconds: float | None = None,
 ) -> CellResult:
     """Fly ``episodes`` episodes of one cell (runs in a worker process). ``safety_filter``: None, or the settings
@@ -251,7 +252,8 @@ def fly_cell(
     (:mod:`marlander_lite.swarm.safety_filter`), which then changes every command before it is flown. ``column``
     is a column's name or a :class:`Column` (a simulator setting none of the named columns is). ``num_drones``:
     the swarm size a shared policy flies (a centralised one flies its own). ``command_frame``: None (the policy's
-    own) or the frame its commands are flown in (``TaskConfig.command_frame``), ``pad_frame_lead`` None or its lead (s),
+    own) or the frame its commands are flown in (``TaskConfig.command_frame``), ``pad_frame_lead`` None, its lead (s)
+    or ``"auto"`` (set in flight from the identified tracker, :mod:`marlander_lite.pad_frame_lead`),
     ``episode_seconds`` None (the policy's training episode) or each episode's time limit (s).
     """
     started = time.perf_counter()
@@ -299,8 +301,9 @@ def fly_cell(
                 if outcome.done[0]:
                     break
                 obs = outcome.obs
-            if lag is not None:
-                identified.append(float(lag.time_constant()[0]))
+            identifier = lag if lag is not None else world.lead_tracker  # the filter's, or the lead's
+            if identifier is not None:
+                identified.append(float(identifier.time_constant()[0]))
             collisions += bool(outcome.min_separation[0] < cfg.collision_distance)
             cause = failure_cause(outcome, cfg)
             if cause is not None:
@@ -434,9 +437,10 @@ class TransferConfig:
     """None: the policy's commands are read in the frame it was trained with. ``"world"`` or ``"pad"``: in that frame
     (``TaskConfig.command_frame``); ``"pad"`` adds each pad's velocity to its drone's command, so that a policy
     trained on static pads can follow a moving one."""
-    pad_frame_lead: float | None = None
+    pad_frame_lead: PadFrameLead | None = None
     """None: the policy's own ``TaskConfig.pad_frame_lead``. A number of seconds: the lead on the pads' acceleration
-    of a pad-frame command, flown instead."""
+    of a pad-frame command, flown instead. ``"auto"``: the lead set in flight, a share of the velocity tracker's lag
+    identified from the commands and velocities (:mod:`marlander_lite.pad_frame_lead`)."""
     episode_seconds: float | None = None
     """None: each episode lasts as long as the policy's training episodes (``TaskConfig.episode_seconds``, 10 s for
     every shipped policy). A number of seconds: that time limit instead, e.g. the paper protocol's 30 s
@@ -459,10 +463,11 @@ class TransferConfig:
             find_row(name)
         if self.safety_filter is not None:
             SafetyFilterConfig.from_dict(self.safety_filter)  # unknown or invalid settings fail before any flight
-        if self.pad_frame_lead is not None and not 0.0 <= self.pad_frame_lead <= task.MAX_PAD_FRAME_LEAD:
-            raise ValueError(
-                f"--pad-frame-lead must be from 0 to {task.MAX_PAD_FRAME_LEAD:g} s, got {self.pad_frame_lead!r}."
-            )
+        if self.pad_frame_lead is not None:
+            try:
+                lead_changes(self.pad_frame_lead)
+            except ValueError as error:
+                raise ValueError(f"--pad-frame-lead: {error}") from None
         seconds = self.episode_seconds
         if seconds is not None and (isinstance(seconds, bool) or not 1.0 <= seconds <= MAX_EPISODE_SECONDS):
             raise ValueError(f"--episode-seconds must be from 1 to {MAX_EPISODE_SECONDS:g} s, got {seconds!r}.")
@@ -587,7 +592,8 @@ def write_results(config: TransferConfig, results: list[CellResult], out: Path, 
             f"commands flown in the {config.command_frame} frame (trained in the {trained['command_frame']} frame), "
         )
     if config.pad_frame_lead not in (None, trained["pad_frame_lead"]):
-        swarm += f"a pad lead of {config.pad_frame_lead:g} s (trained with {trained['pad_frame_lead']:g} s), "
+        lead, trained_lead = describe_lead(config.pad_frame_lead), trained["pad_frame_lead"]
+        swarm += f"a pad lead of {lead} (trained with {trained_lead:g} s), "
     if config.episode_seconds is not None:
         trained_seconds = contract.task.get("episode_seconds", task.TaskConfig().episode_seconds)
         swarm += f"episodes of {config.episode_seconds:g} s (trained with {trained_seconds:g} s), "

@@ -37,6 +37,7 @@ from marlander_lite.experiments.transfer import (
     transfer_matrix,
     write_results,
 )
+from marlander_lite.pad_frame_lead import lead_argument
 from marlander_lite.swarm.safety_filter import parse_settings
 from marlander_lite.task import COMMAND_FRAMES
 
@@ -93,11 +94,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--pad-frame-lead",
-        type=float,
+        type=lead_argument,
         default=None,
-        metavar="S",
+        metavar="S|auto",
         help="with the pad frame, lead the pad velocity a command carries by S seconds of the pad's acceleration "
-        "(TaskConfig.pad_frame_lead; default: the policy's own)",
+        "(TaskConfig.pad_frame_lead; default: the policy's own), or 'auto': by 0.6 times the velocity tracker's lag "
+        "identified in flight (marlander_lite.pad_frame_lead)",
     )
     p.add_argument(
         "--episode-seconds",

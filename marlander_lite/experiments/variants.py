@@ -45,6 +45,7 @@ from marlander_lite.experiments.transfer import (
     _filter_words,
     transfer_matrix,
 )
+from marlander_lite.pad_frame_lead import describe_lead
 from marlander_lite.pointmass.family import checked_range
 
 Range = tuple[float, float]
@@ -349,6 +350,8 @@ def write_variants(
     json_path.write_text(json.dumps(meta, indent=2) + "\n")
     where = " in PyFlyt" if variants and variants[0].simulator == "pyflyt" else ""
     flown = f"seed {config.seed}, sensing {config.sensing}{_filter_words(config.safety_filter)}"
+    if config.pad_frame_lead is not None:
+        flown += f", a pad lead of {describe_lead(config.pad_frame_lead)}"
     md_path.write_text(
         f"`{config.policy}` on {len(variants)} random Crazyflies{where} (variant seed {variant_seed}; "
         f"{config.episodes} episodes a variant and row, {flown}).\n\n{format_summary(results, variants)}\n\n"

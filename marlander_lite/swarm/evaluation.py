@@ -42,6 +42,7 @@ from marlander_lite.experiments.apf import APFConfig
 from marlander_lite.experiments.controllers import PIDAPFController
 from marlander_lite.experiments.metrics import CellSummary, TrialMetrics, summarise, wilson_interval
 from marlander_lite.pad_assignment import PAD_ASSIGNMENTS
+from marlander_lite.pad_frame_lead import PadFrameLead, describe_lead, lead_argument, lead_changes
 from marlander_lite.platforms import PlateGeometry, PlatformConfig
 from marlander_lite.policy_file import load_policy, read_contract
 from marlander_lite.sensing import SensingConfig
@@ -49,7 +50,7 @@ from marlander_lite.simulators import SIMULATORS, simulator_entry
 from marlander_lite.swarm.filtered_policy import BatchAct, with_safety_filter, with_safety_filter_on
 from marlander_lite.swarm.policy import SharedPolicy
 from marlander_lite.swarm.safety_filter import SafetyFilterConfig, parse_settings
-from marlander_lite.task import MAX_PAD_FRAME_LEAD, TaskConfig
+from marlander_lite.task import TaskConfig
 
 SCALING_CONTROLLERS = ("shared", "shared-apf", "shared-filter", "centralised", "centralised-filter", "baseline")
 
@@ -255,13 +256,13 @@ def evaluate_cell(
     task_changes: dict[str, Any] | None = None,
     simulator_options: dict[str, Any] | None = None,
     filter_settings: dict[str, float] | None = None,
-    pad_frame_lead: float | None = None,
+    pad_frame_lead: PadFrameLead | None = None,
 ) -> ScalingRow:
     """Fly ``trials`` trials of ``controller`` on swarms of ``num_drones`` and summarise them (``task_changes``:
     see :func:`evaluation_task`; ``simulator_options`` go to the swarm, e.g. ``{"controller": "firmware"}``;
     ``filter_settings``: see :func:`actor_factory`; ``pad_frame_lead``: None, or the lead (s) a pad-frame policy is
-    flown with instead of the one it was trained with, ``TaskConfig.pad_frame_lead``, a flight setting as in
-    ``marlander transfer --pad-frame-lead``)."""
+    flown with instead of the one it was trained with, ``TaskConfig.pad_frame_lead``, or ``"auto"``, a flight setting
+    as in ``marlander transfer --pad-frame-lead``)."""
     if isinstance(trials, bool) or not isinstance(trials, int) or trials < 1:
         raise ValueError(f"trials must be an integer >= 1, got {trials!r}.")
     started = time.perf_counter()
@@ -297,22 +298,21 @@ def evaluate_cell(
     )
 
 
-def policy_task_changes(policy_path: str | Path, pad_frame_lead: float | None = None) -> dict[str, Any]:
+def policy_task_changes(policy_path: str | Path, pad_frame_lead: PadFrameLead | None = None) -> dict[str, Any]:
     """What the policy file asks of the task beyond eq. 2 (its inputs, its command frame and lead), with its lead
-    replaced by ``pad_frame_lead`` (s) if given; a world-frame policy, which carries no pad velocity to lead, is
-    refused."""
+    replaced by ``pad_frame_lead`` (s, or ``"auto"``: set in flight) if given; a world-frame policy, which carries no
+    pad velocity to lead, is refused."""
     changes = read_contract(policy_path).interface_options()
     if pad_frame_lead is None:
         return changes
-    if not 0.0 <= pad_frame_lead <= MAX_PAD_FRAME_LEAD:  # NaN too
-        raise ValueError(f"The pad-frame lead must be from 0 to {MAX_PAD_FRAME_LEAD:g} s, got {pad_frame_lead!r}.")
+    lead = lead_changes(pad_frame_lead)  # the range, NaN and spelling checks
     if changes.get("command_frame", "world") != "pad":
         raise ValueError(
-            f"A pad-frame lead of {pad_frame_lead:g} s was given, but {policy_path} commands in the world frame, "
-            "where no pad velocity is carried to lead: drop --pad-frame-lead, or fly a policy trained with "
+            f"A pad-frame lead of {describe_lead(pad_frame_lead)} was given, but {policy_path} commands in the world "
+            "frame, where no pad velocity is carried to lead: drop --pad-frame-lead, or fly a policy trained with "
             "command_frame='pad' (e.g. data/policies/moving-slow-trackers-fast-vertical.safetensors)."
         )
-    return {**changes, "pad_frame_lead": pad_frame_lead}
+    return {**changes, **lead}
 
 
 def condition_name(platform: PlatformConfig) -> str:
@@ -427,10 +427,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--pad-frame-lead",
-        type=float,
-        metavar="SECONDS",
+        type=lead_argument,
+        metavar="SECONDS|auto",
         help="fly a pad-frame policy with this lead (TaskConfig.pad_frame_lead) instead of the one it was trained "
-        "with: about the tracker's velocity time constant (docs/transfer.md, 'Where a pad-frame drone touches down')",
+        "with: about the tracker's velocity time constant (docs/transfer.md, 'Where a pad-frame drone touches down'); "
+        "'auto': 0.6 times the tracker lag identified in flight",
     )
     parser.add_argument("--force", action="store_true", help="overwrite STEM.csv/.json/.md already in --out")
 

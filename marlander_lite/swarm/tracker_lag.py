@@ -60,18 +60,44 @@ class TrackerLag:
         self._prior_slope = np.exp(-self.dt / self.prior)
         self._moment: np.ndarray | None = None  # (E,) sum (v_{k+1} - u_k)(v_k - u_k), prior included
         self._power: np.ndarray | None = None  # (E,) sum (v_k - u_k)^2, prior included
+        self._samples: np.ndarray | None = None  # (E,) how many drone-steps gave a sample since the prior
         self._last: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # p, v relative, v world at step k
         self._command: np.ndarray | None = None  # the command sent at step k
 
     def reset(self, envs: np.ndarray | None = None) -> None:
         """Forget what ``envs`` ((E,) bool; None: all) have flown: their estimate is the prior again."""
         if self._moment is None or envs is None:
-            self._moment = self._power = None
+            self._moment = self._power = self._samples = None
             self._last = self._command = None
             return
-        assert self._power is not None
+        assert self._power is not None and self._samples is not None
         self._moment[envs] = self.prior_weight * self._prior_slope
         self._power[envs] = self.prior_weight
+        self._samples[envs] = 0
+
+    def restart(
+        self, envs: np.ndarray, rel_goal: np.ndarray, rel_velocity: np.ndarray, pad_velocity: np.ndarray | None = None
+    ) -> None:
+        """Start the envs ``envs`` (indices) afresh, as new flights: their estimate is the prior again and their next
+        sample starts from this state (``(k, N, 3)`` arrays, one row per env in ``envs``, as :meth:`observe` takes);
+        the other envs keep what they identified. Before the first :meth:`observe`, ``envs`` must be every env."""
+        envs = np.asarray(envs)
+        rel_goal, rel_velocity = np.array(rel_goal, dtype=float), np.array(rel_velocity, dtype=float)
+        velocity = rel_velocity if pad_velocity is None else rel_velocity + np.asarray(pad_velocity, dtype=float)
+        if self._moment is None or self._last is None:
+            if not np.array_equal(envs, np.arange(len(rel_goal))):
+                raise ValueError(
+                    "TrackerLag.restart() before the first observe() must restart every env (indices 0 to E - 1), "
+                    f"to know how many there are; got {envs.tolist()}."
+                )
+            self.reset()
+            self.observe(rel_goal, rel_velocity, pad_velocity)
+            return
+        mask = np.zeros(len(self._moment), dtype=bool)
+        mask[envs] = True
+        self.reset(mask)
+        for last, now in zip(self._last, (rel_goal, rel_velocity, velocity), strict=True):
+            last[envs] = now
 
     def skip(self) -> None:
         """Take no sample across the next step (the loop paused, or the time since the last :meth:`observe` was not
@@ -85,6 +111,11 @@ class TrackerLag:
         low, high = TIME_CONSTANT_RANGE
         slope = np.clip(self._moment / self._power, np.exp(-self.dt / low), np.exp(-self.dt / high))
         return -self.dt / np.log(slope)
+
+    def samples(self) -> np.ndarray:
+        """How many samples (one per airborne drone and policy step) every env's estimate rests on ``(E,)`` (``(1,)``
+        zero before the first :meth:`observe`): what a user of the estimate may wait for before trusting it."""
+        return np.zeros(1, dtype=np.int64) if self._samples is None else self._samples.copy()
 
     def observe(
         self, rel_goal: np.ndarray, rel_velocity: np.ndarray, pad_velocity: np.ndarray | None = None
@@ -109,6 +140,7 @@ class TrackerLag:
         if self._moment is None or self._power is None or len(self._moment) != envs:
             self._moment = np.full(envs, self.prior_weight * self._prior_slope)
             self._power = np.full(envs, self.prior_weight)
+            self._samples = np.zeros(envs, dtype=np.int64)
             self._last = None
         if self._last is not None and self._command is not None:
             last_goal, last_rel_velocity, last_velocity = self._last
@@ -124,7 +156,9 @@ class TrackerLag:
             before, after = np.where(usable[..., None], before, 0.0), np.where(usable[..., None], after, 0.0)
             self._moment += np.einsum("enk,enk,en->e", after, before, usable)
             self._power += np.einsum("enk,enk,en->e", before, before, usable)
-        self._last, self._command = (rel_goal, rel_velocity, velocity), None
+            assert self._samples is not None
+            self._samples += usable.sum(axis=-1)
+        self._last, self._command = (rel_goal.copy(), rel_velocity.copy(), np.array(velocity)), None
         return self.time_constant()
 
     def commanded(self, command: np.ndarray) -> None:
