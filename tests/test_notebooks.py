@@ -145,8 +145,8 @@ def assert_paper_columns(rows: list[dict[str, str]], group: str) -> None:
 
 def assert_shipped_tables(shown: Shown, group: str) -> None:
     """Both simulators' shipped Table I or II, the PyBullet fine-tunes', the paper's network in the pad frame, the
-    paper's network trained on the point mass only and on late commands (its moving fine-tune with its own lead and
-    with 0.3 s): our columns from the shipped summary, the paper's from the paper."""
+    paper's network trained on the point mass only and on late commands (its moving fine-tune with its own lead, with
+    0.3 s and with the lead set in flight): our columns from the shipped summary, the paper's from the paper."""
     shipped = (
         ("point-mass simulator, shipped", "pointmass"),
         ("PyBullet Crazyflie", "crazyflie"),
@@ -155,6 +155,7 @@ def assert_shipped_tables(shown: Shown, group: str) -> None:
         ("PyBullet, the paper's network trained on the point mass only", "crazyflie-paper-slow-trackers"),
         ("PyBullet, late commands (the paper's network and its moving fine-tune)", "crazyflie-late-commands"),
         ("PyBullet, the moving fine-tune flown with a 0.3 s pad lead", "crazyflie-late-commands-lead-0.3"),
+        ("PyBullet, the moving fine-tune with the lead set in flight", "crazyflie-late-commands-lead-auto"),
     )
     for title, simulator in shipped:
         rows = shown.table(title)
