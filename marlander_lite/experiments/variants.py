@@ -352,6 +352,8 @@ def write_variants(
     flown = f"seed {config.seed}, sensing {config.sensing}{_filter_words(config.safety_filter)}"
     if config.pad_frame_lead is not None:
         flown += f", a pad lead of {describe_lead(config.pad_frame_lead)}"
+    if config.episode_seconds is not None:
+        flown += f", {config.episode_seconds:g} s episodes"
     md_path.write_text(
         f"`{config.policy}` on {len(variants)} random Crazyflies{where} (variant seed {variant_seed}; "
         f"{config.episodes} episodes a variant and row, {flown}).\n\n{format_summary(results, variants)}\n\n"
