@@ -45,9 +45,9 @@ def touchdown_offsets(
     seed: int = 0,
 ) -> TouchdownOffsets:
     """Fly ``episodes`` episodes of ``policy_path`` in the transfer matrix's ``column`` (its name, or any
-    :class:`Column`) on a ``platform``
-    (``moving-linear`` or ``moving-arc``) at tool ``speed`` (m/s), Vicon sensing, with its commands led by ``lead``
-    (s; None: the lead the policy was trained with; ``"auto"``: set in flight, :mod:`marlander_lite.pad_frame_lead`).
+    :class:`Column`) on a ``platform`` (``moving-linear`` or ``moving-arc``) at tool ``speed`` (m/s), Vicon sensing,
+    with its commands led by ``lead`` (s; None: the lead the policy was trained with; ``"auto"``: set in flight,
+    :mod:`marlander_lite.pad_frame_lead`).
     Touchdowns while the pad is at rest (turning back) have no along-track direction and are left out."""
     if platform not in ("moving-linear", "moving-arc"):
         raise ValueError(f"platform must be moving-linear or moving-arc, got {platform!r}: a pad at rest has no track.")
@@ -59,7 +59,6 @@ def touchdown_offsets(
     across: list[float] = []
     leads: list[float] = []
     touched = np.zeros(world.task.num_drones, dtype=bool)  # this episode's drones already down
-
     flown_lead = world.pad_frame_leads()  # the lead of the step just flown: read before each step
 
     def watch(outcome: StepOutcome) -> None:
