@@ -15,7 +15,9 @@ filter's ``identified_lag_share`` does (:class:`~marlander_lite.swarm.tracker_la
 ``min(s T, MAX_PAD_FRAME_LEAD)``. Until the identification rests on :data:`WARMUP_SAMPLES` samples it leads by
 ``pad_frame_lead``, the policy file's (the identification starts from the prior ``pad_frame_lead / s``).
 ``marlander transfer --pad-frame-lead auto``, the lab config's ``limits.pad_frame_lead: auto`` and the other flight
-settings select :data:`AUTO_LEAD_SHARE`.
+settings select :data:`AUTO_LEAD_SHARE`. A policy trained with a share (``marlander train --task.pad-frame-lead-share
+0.6``) carries it in its file, and every loop flies it so unless a lead is given (``PolicyContract.interface_options``;
+:func:`describe_policy_lead`, :func:`flies_policy_lead`).
 
 The identified ``T`` includes the attitude loop, the tilt limit and the sensing and command delays, so it is longer
 than the velocity loop's own time constant: flying the moving fine-tune on the UR10's moving rows, 0.27-0.28 s on the
@@ -26,7 +28,8 @@ point mass (its loop: 0.14 s), 0.40 s through PyBullet's firmware tracker (0.20 
 from __future__ import annotations
 
 import argparse
-from typing import Literal
+from collections.abc import Mapping
+from typing import Any, Literal
 
 import numpy as np
 
@@ -86,6 +89,30 @@ def describe_lead(lead: PadFrameLead) -> str:
     if lead == AUTO:
         return f"auto ({AUTO_LEAD_SHARE:g} x the identified tracker lag)"
     return f"{lead:g} s"
+
+
+def describe_policy_lead(options: Mapping[str, Any]) -> str:
+    """How a table names the lead a policy file flies with unless told otherwise, from its ``interface_options()``:
+    ``"0.5 s"``, or ``"auto (0.6 x the identified tracker lag)"`` for a file trained with the lead set in flight."""
+    share = float(options.get("pad_frame_lead_share", 0.0))
+    if share == AUTO_LEAD_SHARE:
+        return describe_lead(AUTO)
+    if share > 0:
+        return f"{share:g} x the identified tracker lag"
+    return describe_lead(float(options.get("pad_frame_lead", 0.0)))
+
+
+def flies_policy_lead(options: Mapping[str, Any], lead: PadFrameLead | None) -> bool:
+    """Whether flying with the setting ``lead`` (None: the file's) keeps the lead of the policy file whose
+    ``interface_options()`` are ``options``: ``auto`` on a file trained with it, its own seconds on one trained with a
+    fixed lead."""
+    if lead is None:
+        return True
+    flown = {**options, **lead_changes(lead)}
+    return all(
+        float(flown.get(name, 0.0)) == float(options.get(name, 0.0))
+        for name in ("pad_frame_lead", "pad_frame_lead_share")
+    )
 
 
 def lead_prior(cfg: TaskConfig) -> float:

@@ -47,6 +47,7 @@ from safetensors.numpy import load_file, save_file
 from marlander_lite.task import (
     ACT_PER_DRONE,
     COMMAND_FRAMES,
+    MAX_LEAD_SHARE,
     MAX_OBSERVATION_HISTORY,
     MAX_PAD_FRAME_LEAD,
     OBS_LIMITS,
@@ -182,10 +183,10 @@ class PolicyContract:
             "observation_history": history,
         }
 
-    def interface_options(self) -> dict[str, bool | int | str]:
-        """:meth:`observation_options` and the frame the policy's commands are read in (``TaskConfig.command_frame``
-        and ``pad_frame_lead``; files written before them: ``"world"``, the paper's, and no lead): every
-        ``TaskConfig`` field a loop flying the policy must follow."""
+    def interface_options(self) -> dict[str, bool | int | str | float]:
+        """:meth:`observation_options` and the frame the policy's commands are read in (``TaskConfig.command_frame``,
+        ``pad_frame_lead`` and ``pad_frame_lead_share``, the lead set in flight; files written before them:
+        ``"world"``, the paper's, and no lead): every ``TaskConfig`` field a loop flying the policy must follow."""
         frame = self.task.get("command_frame", "world")
         if frame not in COMMAND_FRAMES:
             raise PolicyFileError(f"task.command_frame must be one of {', '.join(COMMAND_FRAMES)}, got {frame!r}")
@@ -194,7 +195,22 @@ class PolicyContract:
             raise PolicyFileError(
                 f"task.pad_frame_lead must be a number from 0 to {MAX_PAD_FRAME_LEAD:g} (s), got {lead!r}"
             )
-        return {**self.observation_options(), "command_frame": frame, "pad_frame_lead": float(lead)}
+        share = self.task.get("pad_frame_lead_share", 0.0)
+        if isinstance(share, bool) or not isinstance(share, int | float) or not 0.0 <= share <= MAX_LEAD_SHARE:
+            raise PolicyFileError(
+                f"task.pad_frame_lead_share must be a number from 0 to {MAX_LEAD_SHARE:g}, got {share!r}"
+            )
+        if share > 0 and frame != "pad":
+            raise PolicyFileError(
+                f"task.pad_frame_lead_share is {share:g}, but task.command_frame is {frame!r}: a lead set in flight "
+                "leads pad-frame commands only"
+            )
+        return {
+            **self.observation_options(),
+            "command_frame": frame,
+            "pad_frame_lead": float(lead),
+            "pad_frame_lead_share": float(share),
+        }
 
     def check_observation(self) -> None:
         """Raise :class:`PolicyFileError` unless ``obs_per_drone`` is what :meth:`observation_options` ask for."""

@@ -55,6 +55,9 @@ relative to the drone's pad."""
 MAX_PAD_FRAME_LEAD = 2.0
 """The longest ``TaskConfig.pad_frame_lead`` (s) a task, a policy file, the transfer matrix or a lab config takes."""
 
+MAX_LEAD_SHARE = 2.0
+"""The largest ``TaskConfig.pad_frame_lead_share``: a lead of twice the identified tracker lag."""
+
 MAX_OBSERVATION_HISTORY = 8
 """The most frames ``TaskConfig.observation_history`` may stack."""
 
@@ -206,7 +209,8 @@ class TaskConfig:
     """Beyond the paper, with ``command_frame`` ``"pad"``: ``s`` > 0 sets the lead in flight, ``s`` times the velocity
     tracker's time constant identified from the commands sent and the velocities that followed
     (:mod:`marlander_lite.pad_frame_lead`); ``pad_frame_lead`` leads for the first half second. 0 to 2; 0: the fixed
-    ``pad_frame_lead``. A flight setting (``--pad-frame-lead auto``): no shipped policy was trained with it."""
+    ``pad_frame_lead``. A flight setting (``--pad-frame-lead auto``), or trained with and then carried by the policy
+    file, which flies it unless told otherwise."""
     observation_history: int = 1
     """Beyond the paper: ``H``, how many of a drone's latest observation frames its observation holds, newest first
     (``H`` times :attr:`frame_per_drone` numbers; 1 to 8). A memoryless policy sees one instant; a few frames show it
@@ -280,9 +284,9 @@ class TaskConfig:
                 f"pad_frame_lead must be from 0 to {MAX_PAD_FRAME_LEAD:g} s, and above 0 only with command_frame='pad'",
             ),
             (
-                0.0 <= self.pad_frame_lead_share <= 2.0
+                0.0 <= self.pad_frame_lead_share <= MAX_LEAD_SHARE
                 and (self.pad_frame_lead_share == 0.0 or self.command_frame == "pad"),
-                "pad_frame_lead_share must be from 0 to 2, and above 0 only with command_frame='pad'",
+                f"pad_frame_lead_share must be from 0 to {MAX_LEAD_SHARE:g}, and above 0 only with command_frame='pad'",
             ),
             (
                 self.pad_assignment in PAD_ASSIGNMENTS,

@@ -946,6 +946,7 @@ def check_08(shown: Shown) -> None:
     ]
     assert len(here) == 3 and here[0] < 0 < here[2] and here == sorted(here), here
     check_08_auto_lead(shown)
+    check_08_auto_trained(shown)
     # step responses (with and without RotorPy, and with PyFlyt), transfer bars, the pad's acceleration, the late
     # descent, the swing, the steeper cone's landing errors, PyFlyt held still, the opening family, the integrator,
     # the landing errors of 12 and 20 M steps in PyFlyt 0.22, the two networks on the same recipe, moving pads in the
@@ -1002,6 +1003,36 @@ def check_08_auto_lead(shown: Shown) -> None:
     assert len(live) == 6, live
     assert live[0.142, "auto"][1] < 0.25 < 0.4 < live[0.8, "auto"][1], live
     assert live[0.8, "auto"][0] >= live[0.8, "0.3"][0], live
+
+
+def check_08_auto_trained(shown: Shown) -> None:
+    """Section 4z: the policy trained with the lead set in flight flies it by itself (its file's share); the counts it
+    prints are the shipped csvs'; flown here, its own lead leads a slow point mass by more than a fast one."""
+    paper = "paper-moving-slow-trackers-fast-vertical"
+    assert re.search(rf"^{paper}-auto-lead: its file carries pad_frame_lead_share 0.6: it flies auto", shown.text, re.M)
+    pattern = r"^\| (0.5 s|auto) \| auto \| (\d+) of 24 \| [^|]+ \| [^|]+ \| (\d+) of 24 \|$"
+    found = {trained: (int(moving), int(static)) for trained, moving, static in re.findall(pattern, shown.text, re.M)}
+    folders = {"0.5 s": (f"{paper}-lead-auto", paper), "auto": (f"{paper}-auto-lead", f"{paper}-auto-lead")}
+    assert set(found) == set(folders), found
+    for trained, (moving_folder, static_folder) in folders.items():
+        moving = [c for c in transfer_csv(moving_folder) if c["row"] in MOVING_ROWS]
+        static = [c for c in transfer_csv(static_folder) if c["row"] in ("floor", "UR10")]
+        counts = (
+            sum(float(c["success_rate"]) >= 0.9 for c in moving),
+            sum(float(c["success_rate"]) >= 0.95 for c in static),
+        )
+        assert found[trained] == counts, (trained, found[trained], counts)
+    pattern = r"^40 random PyBullet draws, trained with (0.5 s|auto), flown with auto: (\d+) / (\d+) variants"
+    printed = re.findall(pattern, shown.text, re.M)
+    assert sorted(trained for trained, _, _ in printed) == ["0.5 s", "auto"], printed
+    for trained, arc, line in printed:
+        cells = read_csv(RESULTS / "variants" / folders[trained][0] / "variants.csv")
+        landed = [sum(float(c["success_rate"]) >= 0.9 for c in cells if c["row"] == row) for row in MOVING_ROWS]
+        assert [int(arc), int(line)] == landed, trained
+    pattern = r"^trained with auto, its own lead, on the point mass with a (\S+) s loop .*: (\d+) of \d+ landed, lead "
+    pattern += r"flown (\S+) s$"
+    live = {float(tau): (int(landed), float(flown)) for tau, landed, flown in re.findall(pattern, shown.text, re.M)}
+    assert set(live) == {0.142, 0.8} and live[0.142][1] < 0.25 < 0.4 < live[0.8][1], live
 
 
 def shown_fine_tune_counts(shown: Shown, name: str) -> float:

@@ -12,32 +12,46 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
+from safetensors.numpy import load_file
 
 from marlander_lite.deploy.config import EXAMPLE_CONFIG, load_lab_config
 from marlander_lite.deploy.estimation import SwarmEstimate
 from marlander_lite.deploy.rehearsal import rehearse
 from marlander_lite.deploy.runner import PolicyRunner
 from marlander_lite.experiments.lead_offsets import touchdown_offsets
+from marlander_lite.experiments.protocol import ProtocolConfig
 from marlander_lite.experiments.transfer import Column, Row, build_episodes
 from marlander_lite.pad_frame_lead import (
     AUTO_LEAD_SHARE,
     WARMUP_SAMPLES,
     describe_lead,
+    describe_policy_lead,
+    flies_policy_lead,
     flight_leads,
     lead_argument,
     lead_changes,
     lead_tracker,
 )
-from marlander_lite.policy_file import load_policy
+from marlander_lite.policy_file import PolicyFileError, load_policy, read_contract, save_policy
 from marlander_lite.swarm.evaluation import policy_task_changes
 from marlander_lite.task import TaskConfig
 
 MOVING = "data/policies/paper-moving-slow-trackers-fast-vertical.safetensors"
 """The paper's network's moving fine-tune: commands relative to its pad, trained with a 0.5 s lead."""
+AUTO_TRAINED = "data/policies/paper-moving-slow-trackers-fast-vertical-auto-lead.safetensors"
+"""The same fine-tune trained with the lead set in flight (``pad_frame_lead_share`` 0.6 in its file)."""
 WORLD_FRAME = "data/policies/paper.safetensors"
+
+
+def moving_policy_with(tmp_path: Path, **task_changes: object) -> Path:
+    """:data:`MOVING` with its contract's task changed (the same network), written under ``tmp_path``."""
+    contract = read_contract(MOVING)
+    changed = dataclasses.replace(contract, task={**contract.task, **task_changes})
+    return save_policy(tmp_path / "moving.safetensors", changed, load_file(MOVING))
 
 
 def slowed_point_mass(time_constant: float) -> Column:
@@ -67,6 +81,55 @@ def test_a_share_needs_the_pad_frame_and_a_range() -> None:
     with pytest.raises(ValueError, match=r"commands in the world frame.*drop --pad-frame-lead"):
         policy_task_changes(WORLD_FRAME, "auto")
     assert policy_task_changes(MOVING, "auto")["pad_frame_lead_share"] == AUTO_LEAD_SHARE
+
+
+def test_a_file_trained_with_the_lead_set_in_flight_flies_it_unless_told_otherwise(tmp_path: Path) -> None:
+    """A policy file whose task has ``pad_frame_lead_share`` flies ``auto`` in the transfer matrix, the swarm
+    evaluation, the reproduction and the deployment loop; a lead given as a flight setting replaces it."""
+    fixed = read_contract(MOVING).interface_options()
+    assert (fixed["pad_frame_lead"], fixed["pad_frame_lead_share"]) == (0.5, 0.0)
+    path = moving_policy_with(tmp_path, pad_frame_lead_share=AUTO_LEAD_SHARE)
+    options = read_contract(path).interface_options()
+    assert (options["pad_frame_lead"], options["pad_frame_lead_share"]) == (0.5, AUTO_LEAD_SHARE)
+    assert describe_policy_lead(options) == describe_lead("auto") and describe_policy_lead(fixed) == "0.5 s"
+    assert flies_policy_lead(options, None) and flies_policy_lead(options, "auto")
+    assert not flies_policy_lead(options, 0.5) and not flies_policy_lead(fixed, "auto")
+    assert flies_policy_lead(fixed, 0.5) and not flies_policy_lead(fixed, 0.3)
+    row = Row("line 0.5 m/s", "moving-linear", (0.5, 0.5))
+    assert build_episodes(load_policy(path), slowed_point_mass(0.14), row, "vicon").lead_tracker is not None
+    assert (
+        build_episodes(load_policy(path), slowed_point_mass(0.14), row, "vicon", pad_frame_lead=0.3).lead_tracker
+        is None
+    )
+    assert policy_task_changes(path)["pad_frame_lead_share"] == AUTO_LEAD_SHARE
+    assert policy_task_changes(path, 0.3)["pad_frame_lead_share"] == 0.0
+    protocol = ProtocolConfig(
+        simulator="crazyflie", controllers=("marlander-plus",), policy_paths={"marlander-plus": path}
+    )
+    assert protocol.task("marlander-plus").pad_frame_lead_share == AUTO_LEAD_SHARE
+    lab = load_lab_config(EXAMPLE_CONFIG)
+    assert lab.task_config(**lab.policy_options(options)).pad_frame_lead_share == AUTO_LEAD_SHARE
+    lab = lab.replace(limits=dataclasses.replace(lab.limits, pad_frame_lead=0.3))
+    flown = lab.task_config(**lab.policy_options(options))
+    assert (flown.pad_frame_lead, flown.pad_frame_lead_share) == (0.3, 0.0)
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"pad_frame_lead_share": 2.5}, r"task.pad_frame_lead_share must be a number from 0 to 2, got 2.5"),
+        ({"pad_frame_lead_share": True}, r"task.pad_frame_lead_share must be a number from 0 to 2, got True"),
+        ({"pad_frame_lead_share": "auto"}, r"task.pad_frame_lead_share must be a number from 0 to 2, got 'auto'"),
+        ({"pad_frame_lead_share": float("nan")}, r"task.pad_frame_lead_share must be a number from 0 to 2, got nan"),
+        (
+            {"pad_frame_lead_share": 0.6, "command_frame": "world", "pad_frame_lead": 0.0},
+            r"pad_frame_lead_share is 0.6, but task.command_frame is 'world': a lead set in flight leads pad-frame",
+        ),
+    ],
+)
+def test_a_files_lead_share_is_checked_before_it_flies(tmp_path: Path, changes: dict, message: str) -> None:
+    with pytest.raises(PolicyFileError, match=message):
+        read_contract(moving_policy_with(tmp_path, **changes)).interface_options()
 
 
 def test_the_lead_starts_at_the_files_and_follows_the_identified_lag() -> None:
@@ -121,6 +184,19 @@ def test_auto_lands_on_a_slow_tracker_where_a_lead_for_fast_ones_does_not() -> N
     assert fast.successes >= 18 and slow.successes >= 16
     assert np.median(fast.leads) < 0.25 < 0.4 < np.median(slow.leads)
     assert abs(fast.along.mean()) < 0.02  # within 2 cm of the pad centre along its track
+
+
+@pytest.mark.slow
+def test_a_policy_trained_with_the_lead_set_in_flight_flies_it_by_itself() -> None:
+    """The shipped file trained with ``auto`` leads by itself, no flight setting given: about 0.17 s on the 0.14 s
+    point mass and 0.5 s on the 0.8 s one, landing both (measured 18 and 15 of 20), where 0.3 s given as a flight
+    setting lands the slow one 5 times."""
+    assert read_contract(AUTO_TRAINED).interface_options()["pad_frame_lead_share"] == AUTO_LEAD_SHARE
+    fast = touchdown_offsets(AUTO_TRAINED, slowed_point_mass(0.14), "moving-linear", 0.5, None, 20)
+    slow = touchdown_offsets(AUTO_TRAINED, slowed_point_mass(0.8), "moving-linear", 0.5, None, 20)
+    fixed = touchdown_offsets(AUTO_TRAINED, slowed_point_mass(0.8), "moving-linear", 0.5, 0.3, 20)
+    assert np.median(fast.leads) < 0.25 < 0.4 < np.median(slow.leads)
+    assert fast.successes >= 16 and slow.successes >= 12 and fixed.successes <= 8
 
 
 def test_the_deployment_runner_leads_by_the_share_of_the_lag_it_identifies() -> None:

@@ -151,18 +151,19 @@ def test_paper_slow_trackers_is_the_quickstart_preset_with_the_papers_network_an
 
 
 @pytest.mark.parametrize(
-    ("run", "source", "seed", "threads"),
+    ("run", "source", "seed", "threads", "lead_share"),
     [
-        ("moving-slow-trackers", "quick-cpu-slow-trackers-20m", 0, 1),
-        ("moving-slow-trackers-seed1", "quick-cpu-slow-trackers-20m-seed1", 1, 1),
-        ("paper-moving-slow-trackers", "paper-slow-trackers", 0, 2),
-        ("moving-slow-trackers-fast-vertical", "quick-cpu-slow-trackers-fast-vertical-20m", 0, 2),
-        ("moving-slow-trackers-fast-vertical-seed1", "quick-cpu-slow-trackers-fast-vertical-20m-seed1", 1, 2),
-        ("paper-moving-slow-trackers-fast-vertical", "paper-slow-trackers-fast-vertical", 0, 2),
+        ("moving-slow-trackers", "quick-cpu-slow-trackers-20m", 0, 1, 0.0),
+        ("moving-slow-trackers-seed1", "quick-cpu-slow-trackers-20m-seed1", 1, 1, 0.0),
+        ("paper-moving-slow-trackers", "paper-slow-trackers", 0, 2, 0.0),
+        ("moving-slow-trackers-fast-vertical", "quick-cpu-slow-trackers-fast-vertical-20m", 0, 2, 0.0),
+        ("moving-slow-trackers-fast-vertical-seed1", "quick-cpu-slow-trackers-fast-vertical-20m-seed1", 1, 2, 0.0),
+        ("paper-moving-slow-trackers-fast-vertical", "paper-slow-trackers-fast-vertical", 0, 2, 0.0),
+        ("paper-moving-slow-trackers-fast-vertical-auto-lead", "paper-slow-trackers-fast-vertical", 0, 2, 0.6),
     ],
 )
 def test_the_shipped_moving_slow_trackers_runs_are_their_preset_continued_from_a_shipped_run(
-    run, source, seed, threads
+    run, source, seed, threads, lead_share
 ):
     from pathlib import Path
 
@@ -170,7 +171,7 @@ def test_the_shipped_moving_slow_trackers_runs_are_their_preset_continued_from_a
     # with --torch-threads 1): 6 M steps on top of the source's 20 M, commands in the pad frame led by 0.5 s; the
     # networks are the source's (the paper's 512-512-256-128 actor for paper-slow-trackers). The first three by the
     # preset until 2026-12-01 (MOVING_SLOW_TRACKERS_20M), the fast-vertical ones by the preset since, whose family is
-    # their source's.
+    # their source's. The auto-lead one with --task.pad-frame-lead-share 0.6 as well: the lead set in flight.
     runs = Path(__file__).resolve().parents[1] / "data" / "runs"
     record = json.loads((runs / run / "config.json").read_text())
     preset = get_preset("moving-slow-trackers") if "fast-vertical" in run else MOVING_SLOW_TRACKERS_20M
@@ -180,13 +181,14 @@ def test_the_shipped_moving_slow_trackers_runs_are_their_preset_continued_from_a
     expected = preset.replace(
         init_from=f"data/runs/{source}",
         torch_threads=threads,
-        task={**preset.task, **observation},
+        task={**preset.task, **observation, **({"pad_frame_lead_share": lead_share} if lead_share else {})},
         seed=seed,
         net_arch=source_train.net_arch,
         critic_arch=source_train.critic_arch,
     )
     assert TrainConfig.from_dict(record["train"]) == expected and record["preset"] == "moving-slow-trackers"
     assert record["task"]["command_frame"] == "pad" and record["task"]["pad_frame_lead"] == 0.5
+    assert record["task"].get("pad_frame_lead_share", 0.0) == lead_share  # runs before the field: none
     assert record["finished"]["steps"] == 26_017_792  # the source's 20 M steps and 6 M more
 
 

@@ -53,7 +53,13 @@ from marlander_lite.envs.options import policy_input
 from marlander_lite.episodes import LandingEpisodes, StepOutcome
 from marlander_lite.experiments.metrics import TrialMetrics, wilson_interval
 from marlander_lite.experiments.protocol import trial_seed
-from marlander_lite.pad_frame_lead import PadFrameLead, describe_lead, lead_changes
+from marlander_lite.pad_frame_lead import (
+    PadFrameLead,
+    describe_lead,
+    describe_policy_lead,
+    flies_policy_lead,
+    lead_changes,
+)
 from marlander_lite.policy_file import MLPPolicy, load_policy
 from marlander_lite.rotations import tilt_deg
 from marlander_lite.simulators import simulator_entry
@@ -591,9 +597,11 @@ def write_results(config: TransferConfig, results: list[CellResult], out: Path, 
         swarm += (
             f"commands flown in the {config.command_frame} frame (trained in the {trained['command_frame']} frame), "
         )
-    if config.pad_frame_lead not in (None, trained["pad_frame_lead"]):
-        lead, trained_lead = describe_lead(config.pad_frame_lead), trained["pad_frame_lead"]
-        swarm += f"a pad lead of {lead} (trained with {trained_lead:g} s), "
+    if not flies_policy_lead(trained, config.pad_frame_lead):
+        lead, trained_lead = describe_lead(config.pad_frame_lead), describe_policy_lead(trained)
+        swarm += f"a pad lead of {lead} (trained with {trained_lead}), "
+    elif trained["pad_frame_lead_share"] > 0:  # the file's own lead, set in flight: say so
+        swarm += f"its own pad lead, {describe_policy_lead(trained)}, "
     if config.episode_seconds is not None:
         trained_seconds = contract.task.get("episode_seconds", task.TaskConfig().episode_seconds)
         swarm += f"episodes of {config.episode_seconds:g} s (trained with {trained_seconds:g} s), "

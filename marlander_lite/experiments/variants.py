@@ -45,8 +45,9 @@ from marlander_lite.experiments.transfer import (
     _filter_words,
     transfer_matrix,
 )
-from marlander_lite.pad_frame_lead import describe_lead
+from marlander_lite.pad_frame_lead import describe_lead, describe_policy_lead
 from marlander_lite.pointmass.family import checked_range
+from marlander_lite.policy_file import read_contract
 
 Range = tuple[float, float]
 
@@ -350,8 +351,11 @@ def write_variants(
     json_path.write_text(json.dumps(meta, indent=2) + "\n")
     where = " in PyFlyt" if variants and variants[0].simulator == "pyflyt" else ""
     flown = f"seed {config.seed}, sensing {config.sensing}{_filter_words(config.safety_filter)}"
+    own = read_contract(config.policy).interface_options()
     if config.pad_frame_lead is not None:
         flown += f", a pad lead of {describe_lead(config.pad_frame_lead)}"
+    elif own["pad_frame_lead_share"] > 0:  # the file's own lead, set in flight: say so
+        flown += f", its own pad lead, {describe_policy_lead(own)}"
     if config.episode_seconds is not None:
         flown += f", {config.episode_seconds:g} s episodes"
     md_path.write_text(
