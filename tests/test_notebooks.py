@@ -863,7 +863,7 @@ def check_08(shown: Shown) -> None:
     # >= 90 %, 2.26 cm); each moving fine-tune's counts are its csv's; the random-PyFlyt counts are the variant runs',
     # and on late commands the paper's network lands in more random PyFlyt Crazyflies, on both rows, than before.
     paper_late = "paper-slow-trackers-fast-vertical"
-    for name in ("paper-slow-trackers", paper_late):
+    for name in ("paper-slow-trackers", paper_late, f"{paper_late}-seed1"):
         static = [c for c in transfer_csv(name) if c["row"] in ("floor", "UR10")]
         pattern = (
             rf"^{name}: worst cell (\S+) % \(.+\), lowest Wilson lower bound (\S+) %, largest landing error in eleven "
@@ -879,7 +879,12 @@ def check_08(shown: Shown) -> None:
         shown_fine_tune_counts(shown, name)
     title = "| policy | rows | random PyFlyt Crazyflies at 90 % or more |"
     table = markdown_rows(title + shown.text.split(title, 1)[1].split("\n\n", 1)[0])
-    random_policies = ["paper-slow-trackers", paper_late, "quick-cpu-slow-trackers-fast-vertical-20m"]
+    random_policies = [
+        "paper-slow-trackers",
+        paper_late,
+        f"{paper_late}-seed1",
+        "quick-cpu-slow-trackers-fast-vertical-20m",
+    ]
     assert [r["policy"] for r in table] == random_policies
     landed = {}
     for r, policy in zip(table, random_policies, strict=True):
@@ -891,7 +896,8 @@ def check_08(shown: Shown) -> None:
         on_022 = [[c for c in row if c["controller"] == "pyflyt 0.22"] for row in rows]
         shown_022 = " / ".join(str(sum(float(c["success_rate"]) >= 0.9 for c in row)) for row in on_022)
         assert r["of those read as PyFlyt 0.22"] == f"{shown_022} of {len(on_022[0])}", r
-    assert min(landed[f"{paper_late}-pyflyt"]) > max(landed["paper-slow-trackers-pyflyt"])
+    for seed in ("", "-seed1"):  # both seeds of the late-command recipe
+        assert min(landed[f"{paper_late}{seed}-pyflyt"]) > max(landed["paper-slow-trackers-pyflyt"])
     [(landed_here, flown, _)] = shown.numbers(
         rf"^flown here: {paper_late} on PyFlyt 0.22's UR10 plate: (\d+) of (\d+) landed at (\S+) cm$"
     )
