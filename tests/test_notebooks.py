@@ -1003,6 +1003,29 @@ def check_08_auto_lead(shown: Shown) -> None:
         else:  # PyFlyt's slow loops: within 2 variants a row of the trained lead, the one PyFlyt wants
             [trained] = landed.values()
             assert all(a >= t - 2 for a, t in zip(auto, trained, strict=True)), (auto, trained)
+    # Seed 1 of the recipe flown with auto: its counts, both seeds' ranges and its random-draw counts are the csvs'.
+    shown_fine_tune_counts(shown, f"{paper}-seed1-lead-auto")
+    pattern = r"^seed (\d) with auto: ten Crazyflie-like columns (\S+)-(\S+) %; arc / line: "
+    pattern += r"PyFlyt Crazyflie (\S+) / (\S+) %, PyFlyt Crazyflie 0.22 (\S+) / (\S+) %$"
+    seeds = re.findall(pattern, shown.text, re.MULTILINE)
+    assert [seed for seed, *_ in seeds] == ["0", "1"], seeds
+    for seed, *numbers in seeds:
+        low, high, old_arc, old_line, new_arc, new_line = map(float, numbers)
+        folder = f"{paper}{'-seed1' if seed == '1' else ''}-lead-auto"
+        moving = [c for c in transfer_csv(folder) if c["row"] in MOVING_ROWS]
+        ten = [100 * float(c["success_rate"]) for c in moving if not c["column"].startswith("PyFlyt")]
+        assert close(low, min(ten), 0.051) and close(high, max(ten), 0.051), seed
+        pyflyt = {"PyFlyt Crazyflie": (old_arc, old_line), "PyFlyt Crazyflie 0.22": (new_arc, new_line)}
+        for column, shown_rates in pyflyt.items():
+            rates = [100 * float(c["success_rate"]) for c in moving if c["column"] == column]
+            assert all(close(a, b, 0.051) for a, b in zip(shown_rates, rates, strict=True)), (seed, column)
+        assert low >= 90.0, (seed, low)  # the moving target, in every Crazyflie-like column
+    for kind, suffix in (("PyBullet", ""), ("PyFlyt", "-pyflyt-moving")):
+        pattern = rf"^seed 1 with auto, 40 random {kind} draws: (\d+) / (\d+) variants"
+        [(arc, line)] = re.findall(pattern, shown.text, re.M)
+        cells = read_csv(RESULTS / "variants" / f"{paper}-seed1{suffix}-lead-auto" / "variants.csv")
+        landed = [sum(float(c["success_rate"]) >= 0.9 for c in cells if c["row"] == row) for row in MOVING_ROWS]
+        assert [int(arc), int(line)] == landed, kind
     pattern = r"^point mass with a (\S+) s velocity loop, line at 0.5 m/s, lead (\S+): (\d+) of \d+ .*flown (\S+) s$"
     found = re.findall(pattern, shown.text, re.MULTILINE)
     live = {(float(tau), lead): (int(landed), float(flown)) for tau, lead, landed, flown in found}
