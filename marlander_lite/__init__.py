@@ -15,6 +15,7 @@ other program the ``KeyboardInterrupt`` goes on as usual.
 
 import itertools
 import multiprocessing
+import os
 import signal
 import sys
 from pathlib import Path
@@ -33,9 +34,16 @@ def _started_as_command() -> bool:
 
 
 def _interrupted_during_start_up(signum: int, frame: object) -> None:
-    """SIGINT handler of the ``marlander`` command's start-up: one line and exit status 130, no traceback."""
-    print("Interrupted.", file=sys.stderr)
-    raise SystemExit(130)
+    """SIGINT handler of the ``marlander`` command's start-up: one line and exit status 130, no traceback.
+
+    It ends the process at once (``os._exit``) rather than raising ``SystemExit``: a signal handler runs wherever the
+    interpreter happens to be, and inside a callback of the import machinery (the weakref callback of importlib's
+    module locks) a raised ``SystemExit`` is printed as "Exception ignored" with its traceback and the start-up goes
+    on. Until :func:`marlander_lite.cli.main` runs, the command has only imported modules: nothing to close or save.
+    """
+    sys.stderr.write("Interrupted.\n")
+    sys.stderr.flush()
+    os._exit(130)
 
 
 def restore_interrupt_handler() -> None:

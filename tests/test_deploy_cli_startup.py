@@ -51,6 +51,24 @@ def test_ctrl_c_while_marlander_starts_up_prints_one_line_and_exits_130():
     assert 130 in codes, codes  # at least one Ctrl-C landed in the start-up
 
 
+def test_the_start_up_handler_exits_even_from_inside_an_import_machinery_callback():
+    # CI once sent the Ctrl-C while importlib ran the weakref callback of a module lock: a SystemExit raised there is
+    # printed as "Exception ignored" with a traceback and the start-up goes on. Run the handler from such a callback.
+    code = (
+        "import signal, weakref\n"
+        "import marlander_lite\n"
+        "class Lock: pass\n"
+        "lock = Lock()\n"
+        "ref = weakref.ref(lock, lambda _: marlander_lite._interrupted_during_start_up(signal.SIGINT, None))\n"
+        "del lock\n"
+        "print('went on')\n"
+    )
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 130, (run.returncode, run.stderr)
+    assert run.stderr.strip().splitlines()[-1] == "Interrupted." and "Traceback" not in run.stderr, run.stderr
+    assert "went on" not in run.stdout
+
+
 def test_a_library_user_still_gets_the_keyboard_interrupt():
     # any other program that imports marlander_lite sees the KeyboardInterrupt as usual (not a silent exit)
     code = "import marlander_lite"
