@@ -864,7 +864,7 @@ def check_08(shown: Shown) -> None:
     # >= 90 %, 2.26 cm); each moving fine-tune's counts are its csv's; the random-PyFlyt counts are the variant runs',
     # and on late commands the paper's network lands in more random PyFlyt Crazyflies, on both rows, than before.
     paper_late = "paper-slow-trackers-fast-vertical"
-    for name in ("paper-slow-trackers", paper_late, f"{paper_late}-seed1"):
+    for name in ("paper-slow-trackers", paper_late, f"{paper_late}-seed1", f"{paper_late}-seed2"):
         static = [c for c in transfer_csv(name) if c["row"] in ("floor", "UR10")]
         pattern = (
             rf"^{name}: worst cell (\S+) % \(.+\), lowest Wilson lower bound (\S+) %, largest landing error in eleven "
