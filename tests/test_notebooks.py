@@ -157,6 +157,7 @@ def assert_shipped_tables(shown: Shown, group: str) -> None:
         ("PyBullet, the moving fine-tune flown with a 0.3 s pad lead", "crazyflie-late-commands-lead-0.3"),
         ("PyBullet, the moving fine-tune with the lead set in flight", "crazyflie-late-commands-lead-auto"),
         ("PyBullet, its seed 1 with the lead set in flight", "crazyflie-late-commands-seed1-lead-auto"),
+        ("PyBullet, the paper's network's seed 2 on late commands", "crazyflie-late-commands-seed2"),
     )
     for title, simulator in shipped:
         rows = shown.table(title)
