@@ -23,7 +23,7 @@ logs without summary a flight log not closed by its summary record
 ==================  ===================================================================
 
 Every total must be 0. Run: ``python benchmarks/fault_campaign.py [--seeds N] [--simulator crazyflie]``
-(exit status 1 if any total is not 0). ``tests/test_deploy_campaign.py`` runs it in-process with 5 seeds.
+(exit status 1 if any total is not 0). ``tests/test_deploy_campaign.py`` runs it in-process with 3 seeds.
 """
 
 from __future__ import annotations

@@ -115,5 +115,13 @@ def test_ctrl_c_between_the_package_import_and_cli_main_is_quiet_too():
         "cli.restore_interrupt_handler()\n"
         "assert signal.getsignal(signal.SIGINT) is signal.default_int_handler\n"
     )
-    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    # As above, SIGINT starts at its default: a shell starts background jobs (a CI runner's, say) with it ignored,
+    # Python then installs no handler of its own, and the library rightly leaves it ignored.
+    run = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
     assert run.returncode == 0, run.stderr

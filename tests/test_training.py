@@ -166,6 +166,7 @@ def test_paper_slow_trackers_is_the_quickstart_preset_with_the_papers_network_an
         ("paper-moving-slow-trackers-fast-vertical", "paper-slow-trackers-fast-vertical", 0, 2, 0.0),
         ("paper-moving-slow-trackers-fast-vertical-auto-lead", "paper-slow-trackers-fast-vertical", 0, 2, 0.6),
         ("paper-moving-slow-trackers-fast-vertical-seed1", "paper-slow-trackers-fast-vertical-seed1", 1, 2, 0.0),
+        ("paper-moving-slow-trackers-fast-vertical-seed2", "paper-slow-trackers-fast-vertical-seed2", 2, 2, 0.0),
     ],
 )
 def test_the_shipped_moving_slow_trackers_runs_are_their_preset_continued_from_a_shipped_run(
