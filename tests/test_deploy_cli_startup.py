@@ -91,6 +91,18 @@ def test_importing_the_package_still_registers_the_gym_ids():
         env.close()
 
 
+def run_python_with_default_sigint(code: str) -> subprocess.CompletedProcess[str]:
+    """``python -c code`` with SIGINT at its default: a shell starts background jobs (a CI runner's, say) with it
+    ignored, Python then installs no handler of its own, and the library rightly leaves it ignored."""
+    return subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+
+
 def test_ctrl_c_between_the_package_import_and_cli_main_is_quiet_too():
     """The start-up also imports ``marlander_lite.cli`` after the package; on a fast host a Ctrl-C 0.3 s in landed
     there, past the package's imports, and printed a traceback. The command's start-up handler holds until
@@ -100,13 +112,7 @@ def test_ctrl_c_between_the_package_import_and_cli_main_is_quiet_too():
         "import os, signal, time, marlander_lite\n"
         "os.kill(os.getpid(), signal.SIGINT); time.sleep(2); print('not interrupted')\n"
     )
-    run = subprocess.run(
-        [sys.executable, "-c", code],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
-    )
+    run = run_python_with_default_sigint(code)
     assert (run.returncode, run.stderr.strip(), run.stdout) == (130, "Interrupted.", ""), run
     # Once cli.main runs, Python's own handler is back, and main turns the KeyboardInterrupt into the same line.
     code = (
@@ -115,13 +121,5 @@ def test_ctrl_c_between_the_package_import_and_cli_main_is_quiet_too():
         "cli.restore_interrupt_handler()\n"
         "assert signal.getsignal(signal.SIGINT) is signal.default_int_handler\n"
     )
-    # As above, SIGINT starts at its default: a shell starts background jobs (a CI runner's, say) with it ignored,
-    # Python then installs no handler of its own, and the library rightly leaves it ignored.
-    run = subprocess.run(
-        [sys.executable, "-c", code],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
-    )
+    run = run_python_with_default_sigint(code)
     assert run.returncode == 0, run.stderr
