@@ -11,6 +11,7 @@ Examples::
     marlander transfer P --rows "arc 0.2-0.5 m/s" --command-frame pad  # a static policy carried by the pad
     marlander transfer P --variants 40 --episodes 25 --rows floor,UR10   # 40 random Crazyflies instead of columns
     marlander transfer P --variants 40 --episodes 25 --variant-simulator pyflyt  # the same draw, in PyFlyt
+    marlander transfer P --columns all --targets paper   # and check the matrix against the paper policy's targets
 
 Writes ``transfer.csv``, ``transfer.json`` and ``transfer.md`` to ``--out`` (default
 ``runs/transfer-<policy name>``) and prints the table; with ``--variants``, ``variants.csv``, ``.json`` and ``.md``
@@ -25,6 +26,7 @@ import sys
 import time
 from pathlib import Path
 
+from marlander_lite.experiments import targets as transfer_targets
 from marlander_lite.experiments import variants as random_variants
 from marlander_lite.experiments.commands import _choices
 from marlander_lite.experiments.transfer import (
@@ -132,6 +134,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help='changes to the ranges the variants are drawn from, e.g. \'{"latency_s": [0, 0.1], "firmware_share": 1}\'',
     )
     p.add_argument(
+        "--targets",
+        choices=tuple(transfer_targets.TARGETS),
+        default=None,
+        help="after the matrix, check it against the issue's targets for this kind of policy (quick-cpu: static "
+        "pads; paper, moving: static and moving pads; marlander_lite.experiments.targets)",
+    )
+    p.add_argument(
         "--out", type=Path, help="results folder (default runs/transfer-<policy name>, runs/variants-<policy name>)"
     )
     p.add_argument("--force", action="store_true", help="overwrite transfer.* (or variants.*) files already in --out")
@@ -166,6 +175,8 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError("--variant-seed, --variant-ranges and --variant-simulator need --variants N")
     if args.variants is not None and args.columns is not None:
         raise ValueError("--variants flies random Crazyflies instead of the columns: leave --columns out")
+    if args.variants is not None and args.targets is not None:
+        raise ValueError("--targets checks the columns' matrix, not random Crazyflies: drop --targets or --variants")
     config = TransferConfig(
         policy=str(args.policy),
         episodes=args.episodes,
@@ -195,6 +206,9 @@ def run(args: argparse.Namespace) -> int:
     print(format_table(results))
     print()
     print(format_flight_table(results))
+    if args.targets is not None:
+        print()
+        print(transfer_targets.format_targets(results, transfer_targets.TARGETS[args.targets]))
     print(f"\n{wall:.0f} s; wrote {', '.join(map(str, paths))}", file=sys.stderr)
     return 0
 
