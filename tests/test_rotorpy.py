@@ -18,6 +18,7 @@ from rotorpy.vehicles.crazyflie_params import quad_params
 from rotorpy.vehicles.multirotor import Multirotor
 
 from marlander_lite.rotorpy_sim.envs import RotorPyOptions
+from marlander_lite.rotorpy_sim.tuning import RotorPyTuning
 
 GRAVITY = 9.81
 
@@ -135,3 +136,67 @@ def test_changed_parameters_are_flown():
         soft.step(np.array([[[1.0, 0.0, 0.0]]]))
         stiff.step(np.array([[[1.0, 0.0, 0.0]]]))
     assert soft.vel[0, 0, 0] < stiff.vel[0, 0, 0]
+
+
+# ----------------------------------------------------------------------------- another RotorPy Crazyflie
+
+
+def _hold_then_step(sim, steps: int = 48, step_at: int = 24) -> np.ndarray:
+    """``(steps, 3)`` velocities: zero commands, then 0.5 m/s along x from step ``step_at``."""
+    velocities = []
+    for k in range(steps):
+        command = np.array([[[0.5 if k >= step_at else 0.0, 0.0, 0.0]]])
+        sim.step(command)
+        velocities.append(sim.vel[0, 0].copy())
+    return np.array(velocities)
+
+
+def test_the_default_tuning_changes_nothing():
+    plain, tuned = _swarm(), _swarm(tuning=RotorPyTuning())
+    np.testing.assert_array_equal(_hold_then_step(plain), _hold_then_step(tuned))
+
+
+def test_a_mass_the_controller_does_not_know_sinks_at_the_p_loops_steady_error():
+    """RotorPy's velocity loop is proportional: asked to hover, a drone 20 % heavier than its controller believes
+    settles where ``m_told (k_v (0 - v) + g) = m g``, i.e. sinking at ``v = -g (m / m_told - 1) / k_v``."""
+    sim = _swarm(tuning={"mass_scale": 1.2})
+    assert sim.quad_params["mass"] == pytest.approx(1.2 * quad_params["mass"])
+    assert sim.quad_params["Ixx"] == pytest.approx(1.2 * quad_params["Ixx"])
+    for _ in range(48):  # two seconds, about 20 time constants of 1 / k_v
+        sim.step(np.zeros((1, 1, 3)))
+    expected = -GRAVITY * (1.2 - 1.0) / quad_params["k_v"]
+    assert sim.vel[0, 0, 2] == pytest.approx(expected, rel=0.02)
+    assert _swarm().vel[0, 0, 2] == 0.0
+
+
+def test_latency_delays_every_command_by_whole_control_periods():
+    """One policy step of latency (4 periods at 96 Hz): the late drone flies what the prompt one flew a step before."""
+    late = _hold_then_step(_swarm(tuning={"latency_s": 1 / 24}))
+    prompt = _hold_then_step(_swarm())
+    assert RotorPyTuning(latency_s=0.0625).delay_periods(96.0) == 6
+    np.testing.assert_allclose(late[1:], prompt[:-1], atol=1e-9)
+    assert late[24, 0] == 0.0 < prompt[24, 0]
+
+
+def test_scaled_gains_are_rotorpys_gains_scaled():
+    sim = _swarm(tuning={"outer_gain_scale": 0.5, "inner_gain_scale": 2.0})
+    changed = {name: sim.quad_params[name] for name in ("k_v", "kp_att", "kd_att")}
+    assert changed == pytest.approx({"k_v": 5.0, "kp_att": 620.0, "kd_att": 114.0})
+    soft = _hold_then_step(sim)
+    assert soft[26, 0] < _hold_then_step(_swarm())[26, 0]  # a softer velocity loop answers the step later
+
+
+@pytest.mark.parametrize(
+    ("tuning", "error", "message"),
+    [
+        ({"mass_scale": 0.2}, ValueError, r"RotorPyTuning.mass_scale must be a number in \[0.5, 2\], got 0.2"),
+        ({"latency_s": -0.01}, ValueError, r"RotorPyTuning.latency_s must be a number in \[0, 0.5\]"),
+        ({"outer_gain_scale": 0.0}, ValueError, r"outer_gain_scale must be a number in \(0, 5\]"),
+        ({"inner_gain_scale": float("nan")}, ValueError, "inner_gain_scale must be a number"),
+        ({"tilt_limit_deg": 20}, TypeError, r"got unknown option\(s\) \['tilt_limit_deg'\]; allowed options: mass"),
+        ("heavy", TypeError, "must be a RotorPyTuning, a mapping of its fields or None, got str"),
+    ],
+)
+def test_a_bad_tuning_says_what_is_allowed(tuning, error, message):
+    with pytest.raises(error, match=message):
+        RotorPyOptions(tuning=tuning)

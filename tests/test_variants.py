@@ -189,21 +189,38 @@ def test_pyflyt_variants_draw_the_same_values_and_give_them_to_pyflyts_drone() -
     assert tuning["body_drag"] == (pyflyts[0].physics == "aero")
     late = draw_variants(10, 0, VariantRanges(late_read_share=1.0), simulator="pyflyt")
     assert {v.controller for v in late} == {"pyflyt 0.21.0"}
-    with pytest.raises(ValueError, match="--variant-simulator must be one of crazyflie, pyflyt"):
-        draw_variants(3, 0, simulator="rotorpy")
+    with pytest.raises(ValueError, match="--variant-simulator must be one of crazyflie, pyflyt, rotorpy"):
+        draw_variants(3, 0, simulator="gazebo")
 
 
-def test_the_command_flies_random_crazyflies_in_pyflyt(tmp_path, capsys) -> None:
-    pytest.importorskip("PyFlyt")
+def test_rotorpy_variants_draw_the_same_values_and_give_them_to_rotorpys_drone() -> None:
+    """The same numbers as the PyBullet draw; RotorPy has one controller and no tilt clamp, so neither is flown."""
+    crazyflies, rotorpys = draw_variants(40, 5), draw_variants(40, 5, simulator="rotorpy")
+    for mine, theirs in zip(crazyflies, rotorpys, strict=True):
+        assert (theirs.simulator, theirs.controller, theirs.physics) == ("rotorpy", "rotorpy", mine.physics)
+        assert [getattr(theirs, name) for name in RANGE_BOUNDS] == [getattr(mine, name) for name in RANGE_BOUNDS]
+    column = rotorpys[0].column()
+    assert column.simulator == "rotorpy" and column.options["aero"] == (rotorpys[0].physics == "aero")
+    drawn = {name: getattr(rotorpys[0], name) for name in ("mass_scale", "latency_s")}
+    drawn |= {"outer_gain_scale": rotorpys[0].outer_gain_scale, "inner_gain_scale": rotorpys[0].inner_gain_scale}
+    assert column.options["tuning"] == drawn
+    assert rotorpys[0].describe().endswith("no tilt clamp") and "tilt" not in str(column.options)
+
+
+@pytest.mark.parametrize(
+    ("simulator", "module", "name"), [("pyflyt", "PyFlyt", "PyFlyt"), ("rotorpy", "rotorpy", "RotorPy")]
+)
+def test_the_command_flies_random_crazyflies_in_another_simulator(simulator, module, name, tmp_path, capsys) -> None:
+    pytest.importorskip(module)
     out = tmp_path / "v"
     args = ["transfer", POLICY, "--variants", "2", "--episodes", "1", "--rows", "floor", "--workers", "1"]
-    assert main([*args, "--variant-simulator", "pyflyt", "--out", str(out)]) == 0
-    assert "in pyflyt" in capsys.readouterr().out
+    assert main([*args, "--variant-simulator", simulator, "--out", str(out)]) == 0
+    assert f"in {simulator}" in capsys.readouterr().out
     lines = list(csv.DictReader((out / "variants.csv").open()))
-    assert [line["simulator"] for line in lines] == ["pyflyt", "pyflyt"]
+    assert [line["simulator"] for line in lines] == [simulator, simulator]
     variants, cells = read_variants(out / "variants.json")
-    assert variants == draw_variants(2, 0, simulator="pyflyt") and len(cells) == 2
-    assert "random Crazyflies in PyFlyt" in (out / "variants.md").read_text()
+    assert variants == draw_variants(2, 0, simulator=simulator) and len(cells) == 2
+    assert f"random Crazyflies in {name}" in (out / "variants.md").read_text()
 
 
 def _cell(column: str, row: str, successes: int, episodes: int = 20, error: float = 1.0) -> transfer.CellResult:

@@ -68,6 +68,34 @@ def config_from_mapping(config_type: type[ConfigT], values: Mapping[str, Any], w
     return config_type(**values)
 
 
+def check_bounded_fields(
+    config: object, bounds: Iterable[tuple[str, float, float, bool]], optional: tuple[str, ...] = ()
+) -> None:
+    """Every ``(name, low, high, open_low)`` field of ``config`` a finite number in ``[low, high]`` (``(low, high]``
+    when ``open_low``), or None for the ``optional`` ones. Raises ``ValueError`` naming the field and its interval."""
+    owner = type(config).__name__
+    for name, low, high, open_low in bounds:
+        value = getattr(config, name)
+        if value is None and name in optional:
+            continue
+        finite = isinstance(value, int | float) and not isinstance(value, bool) and np.isfinite(value)
+        inside = finite and (low < value if open_low else low <= value) and value <= high
+        if not inside:
+            bracket = "(" if open_low else "["
+            raise ValueError(f"{owner}.{name} must be a number in {bracket}{low:g}, {high:g}], got {value!r}.")
+
+
+def build_config(config_type: type[ConfigT], value: ConfigT | Mapping[str, Any] | None, where: str) -> ConfigT:
+    """An option that takes a config dataclass: one, a mapping of its fields, or None for its defaults."""
+    if value is None or isinstance(value, config_type):
+        return value or config_type()
+    if not isinstance(value, Mapping):
+        raise TypeError(
+            f"{where} must be a {config_type.__name__}, a mapping of its fields or None, got {type(value).__name__}."
+        )
+    return config_from_mapping(config_type, value, where)
+
+
 @dataclass(frozen=True)
 class EnvOptions:
     """What every env of every simulator takes: N drones, a platform, the MDP constants, the sensing model.

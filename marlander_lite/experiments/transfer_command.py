@@ -11,6 +11,7 @@ Examples::
     marlander transfer P --rows "arc 0.2-0.5 m/s" --command-frame pad  # a static policy carried by the pad
     marlander transfer P --variants 40 --episodes 25 --rows floor,UR10   # 40 random Crazyflies instead of columns
     marlander transfer P --variants 40 --episodes 25 --variant-simulator pyflyt  # the same draw, in PyFlyt
+    marlander transfer P --variants 40 --episodes 25 --variant-simulator rotorpy  # and in RotorPy
     marlander transfer P --columns all --targets paper   # and check the matrix against the paper policy's targets
 
 Writes ``transfer.csv``, ``transfer.json`` and ``transfer.md`` to ``--out`` (default
@@ -123,8 +124,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--variant-simulator",
         choices=random_variants.VARIANT_SIMULATORS,
         default=None,
-        help="where the --variants fly: crazyflie (our PyBullet swarm, the default) or pyflyt (PyFlyt's own "
-        "controller with the drawn mass, latency, gains and tilt clamp; the optional extra pyflyt)",
+        help="where the --variants fly: crazyflie (our PyBullet swarm, the default), pyflyt (PyFlyt's own "
+        "controller with the drawn mass, latency, gains and tilt clamp; the optional extra pyflyt) or rotorpy "
+        "(RotorPy's own controller with the drawn mass, latency and gains; the optional extra rotorpy)",
     )
     p.add_argument(
         "--variant-ranges",

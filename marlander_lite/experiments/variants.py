@@ -14,7 +14,10 @@ from :class:`VariantRanges`, wider than the matrix's fixed columns, and flies th
 POLICY --variants 40``). The same draw can be flown in PyFlyt, a simulator this project did not write
 (``--variant-simulator pyflyt``): PyFlyt's own cascaded PID with the same mass, latency, gains and tilt clamp drawn
 (:class:`~marlander_lite.pyflyt_sim.tuning.PyFlytTuning`), its controllers reading the state on time (as PyFlyt 0.22)
-or one physics step late (as 0.21.0), with or without its body drag.
+or one physics step late (as 0.21.0), with or without its body drag; or in RotorPy, a third
+(``--variant-simulator rotorpy``): RotorPy's own velocity controller with the same mass (unknown to it), latency and
+gains (:class:`~marlander_lite.rotorpy_sim.tuning.RotorPyTuning`), with or without its rotor drag and induced inflow.
+RotorPy's controller has no tilt clamp, so the drawn clamp is not flown there.
 
 What it reports is a distribution: in how many of the drawn Crazyflies the policy lands 90 % of episodes or more, the
 median, and the worst variant with the parameters that broke it (docs/transfer.md, "Random Crazyflies"). Every
@@ -57,9 +60,9 @@ SUCCESS_THRESHOLD = 0.9
 MAX_VARIANTS = 1000
 """The most variants one run draws (named ``variant 000`` to ``variant 999``)."""
 
-VARIANT_SIMULATORS = ("crazyflie", "pyflyt")
-"""Where random Crazyflies are flown: our PyBullet swarm (its two trackers), or PyFlyt (the optional extra
-``pyflyt``) under its own controller."""
+VARIANT_SIMULATORS = ("crazyflie", "pyflyt", "rotorpy")
+"""Where random Crazyflies are flown: our PyBullet swarm (its two trackers), PyFlyt (the optional extra ``pyflyt``) or
+RotorPy (the optional extra ``rotorpy``), each under its own controller."""
 
 PYFLYT_ORDERS = {"pyflyt 0.22": "after_physics", "pyflyt 0.21.0": "before_physics"}
 """A PyFlyt variant's ``controller``: when PyFlyt's controllers read the state (``PyFlytOptions.read_state``)."""
@@ -78,7 +81,7 @@ class VariantRanges:
     """Probability that a variant flies the Crazyflie firmware's tracker; otherwise our cascaded PID (PyBullet)."""
     aero_share: float = 0.5
     """Probability that a variant's physics has ground effect, drag and downwash (``"aero"``; in PyFlyt, its body
-    drag); otherwise ``"bare"``, the rigid body alone."""
+    drag; in RotorPy, its rotor drag and induced inflow); otherwise ``"bare"``, the rigid body alone."""
     late_read_share: float = 0.5
     """PyFlyt only: probability that PyFlyt's controllers read each state one physics step late, as its pinned 0.21.0
     does (``"pyflyt 0.21.0"``); otherwise on time, as PyFlyt since 0.22 (``"pyflyt 0.22"``)."""
@@ -94,7 +97,7 @@ class VariantRanges:
     attitude kp and kd. The attitude loops answer faster or slower, as another tuning or motor set would."""
     tilt_limit_deg: Range = (15.0, 40.0)
     """The tracker's tilt clamp (deg): the firmware's roll and pitch setpoints (20 by default), our PID's thrust
-    vector (30 by default)."""
+    vector (30 by default); drawn but not flown in RotorPy, whose controller has none."""
 
     def __post_init__(self) -> None:
         for name in ("firmware_share", "aero_share", "late_read_share"):
@@ -141,15 +144,17 @@ class Variant:
 
     def column(self) -> Column:
         """The simulator's options for this variant, as a transfer-matrix column."""
+        # The hosted simulators' tunings (RotorPy's, PyFlyt's) share these four; PyFlyt's adds its clamp and drag.
+        tuning: dict[str, Any] = {
+            "mass_scale": self.mass_scale,
+            "latency_s": self.latency_s,
+            "outer_gain_scale": self.outer_gain_scale,
+            "inner_gain_scale": self.inner_gain_scale,
+        }
+        if self.simulator == "rotorpy":
+            return Column(self.name, "rotorpy", {"aero": self.physics == "aero", "tuning": tuning})
         if self.simulator == "pyflyt":
-            tuning = {
-                "mass_scale": self.mass_scale,
-                "latency_s": self.latency_s,
-                "outer_gain_scale": self.outer_gain_scale,
-                "inner_gain_scale": self.inner_gain_scale,
-                "tilt_limit_deg": self.tilt_limit_deg,
-                "body_drag": self.physics == "aero",
-            }
+            tuning |= {"tilt_limit_deg": self.tilt_limit_deg, "body_drag": self.physics == "aero"}
             return Column(self.name, "pyflyt", {"read_state": PYFLYT_ORDERS[self.controller], "tuning": tuning})
         options: dict[str, Any] = {
             "controller": self.controller,
@@ -179,10 +184,10 @@ class Variant:
 
     def describe(self) -> str:
         """One line: ``firmware, aero, mass x1.07, 43 ms, outer x0.81, inner x1.22, tilt 27 deg``."""
+        tilt = "no tilt clamp" if self.simulator == "rotorpy" else f"tilt {self.tilt_limit_deg:.0f} deg"
         return (
             f"{self.controller}, {self.physics}, mass x{self.mass_scale:.2f}, {1000 * self.latency_s:.0f} ms, "
-            f"outer x{self.outer_gain_scale:.2f}, inner x{self.inner_gain_scale:.2f}, "
-            f"tilt {self.tilt_limit_deg:.0f} deg"
+            f"outer x{self.outer_gain_scale:.2f}, inner x{self.inner_gain_scale:.2f}, {tilt}"
         )
 
 
@@ -201,7 +206,8 @@ def draw_variants(
     Variant ``k`` draws from its own generator, ``numpy.random.SeedSequence(seed, spawn_key=(k,))``: the tracker's
     coin, the physics' coin, then each range in the order of :data:`RANGE_BOUNDS`. So a seed gives the same variants
     on every machine, and the first ten of a draw of 40 are the draw of 10. In PyFlyt the tracker's coin is the read
-    order's (``late_read_share``); the other values are those the same seed draws for PyBullet.
+    order's (``late_read_share``); in RotorPy, with one controller, it is drawn and unused. The other values are those
+    the same seed draws for PyBullet.
     """
     if isinstance(count, bool) or not isinstance(count, int) or not 1 <= count <= MAX_VARIANTS:
         raise ValueError(f"--variants must be an integer from 1 to {MAX_VARIANTS}, got {count!r}.")
@@ -210,8 +216,7 @@ def draw_variants(
     if simulator not in VARIANT_SIMULATORS:
         raise ValueError(f"--variant-simulator must be one of {', '.join(VARIANT_SIMULATORS)}, got {simulator!r}.")
     ranges = ranges or VariantRanges()
-    pyflyt = simulator == "pyflyt"
-    tracker_share = ranges.late_read_share if pyflyt else ranges.firmware_share
+    tracker_share = ranges.late_read_share if simulator == "pyflyt" else ranges.firmware_share
     variants = []
     for k in range(count):
         rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(k,)))
@@ -220,7 +225,7 @@ def draw_variants(
         variants.append(
             Variant(
                 name=f"variant {k:03d}",
-                controller=_tracker(pyflyt, bool(first)),
+                controller=_tracker(simulator, bool(first)),
                 physics="aero" if aero else "bare",
                 **drawn,
                 simulator=simulator,
@@ -229,8 +234,10 @@ def draw_variants(
     return tuple(variants)
 
 
-def _tracker(pyflyt: bool, coin: bool) -> str:
-    if pyflyt:
+def _tracker(simulator: str, coin: bool) -> str:
+    if simulator == "rotorpy":
+        return "rotorpy"
+    if simulator == "pyflyt":
         return "pyflyt 0.21.0" if coin else "pyflyt 0.22"
     return "firmware" if coin else "pid"
 
@@ -349,7 +356,7 @@ def write_variants(
         "cells": [asdict(r) for r in results],
     }
     json_path.write_text(json.dumps(meta, indent=2) + "\n")
-    where = " in PyFlyt" if variants and variants[0].simulator == "pyflyt" else ""
+    where = {"pyflyt": " in PyFlyt", "rotorpy": " in RotorPy"}.get(variants[0].simulator, "") if variants else ""
     flown = f"seed {config.seed}, sensing {config.sensing}{_filter_words(config.safety_filter)}"
     own = read_contract(config.policy).interface_options()
     if config.pad_frame_lead is not None:

@@ -35,6 +35,17 @@ def control_periods(control_hz: float, policy_hz: float) -> int:
     return round(periods)
 
 
+TUNING_BOUNDS = (
+    ("mass_scale", 0.5, 2.0, False),
+    ("latency_s", 0.0, 0.5, False),
+    ("outer_gain_scale", 0.0, 5.0, True),
+    ("inner_gain_scale", 0.0, 5.0, True),
+)
+"""What every hosted simulator's tuning (PyFlyt's, RotorPy's) lets change, ``(field, low, high, open_low)``: a mass
+the controller does not know about (x0.5-2), command latency (0-0.5 s), the outer and the inner loops' gains
+(x0-5, 0 excluded); :func:`~marlander_lite.envs.options.check_bounded_fields` checks them."""
+
+
 class HostedDroneSwarm(PointMassSwarm):
     """The point mass's world with drones flown by another simulator (see the module docstring).
 
@@ -44,6 +55,31 @@ class HostedDroneSwarm(PointMassSwarm):
 
     control_periods: int
     """Control periods of the hosted simulator per policy step."""
+    _in_flight: np.ndarray = np.zeros((0, 0, 0, 3))
+    """Commands on their way to the controller, ``(delay periods, num_envs, N, 3)`` (see :meth:`_delay_commands`)."""
+    _next_slot: int = 0
+
+    def _delay_commands(self, periods: int) -> None:
+        """Make every command reach the hosted controller ``periods`` control periods after it was given (a radio's
+        latency); until the first one arrives the controller is told to hold still (a zero velocity)."""
+        self._in_flight = np.zeros((periods, self.num_envs, self.task.num_drones, 3))
+        self._next_slot = 0
+
+    def _arriving(self, velocity: np.ndarray) -> np.ndarray:
+        """The commands the controller gets this period: those given ``periods`` ago, ``velocity`` taking their slot;
+        ``velocity`` itself without latency."""
+        if not len(self._in_flight):
+            return velocity
+        slot = self._next_slot
+        arriving = self._in_flight[slot].copy()
+        self._in_flight[slot] = velocity
+        self._next_slot = (slot + 1) % len(self._in_flight)
+        return arriving
+
+    def reset(self, env_ids: np.ndarray, rng: np.random.Generator) -> None:
+        super().reset(env_ids, rng)
+        if len(self._in_flight):  # nothing of the last episode is still on its way
+            self._in_flight[:, np.atleast_1d(env_ids)] = 0.0
 
     def step(self, velocity: np.ndarray) -> None:
         velocity = np.asarray(velocity, dtype=float)

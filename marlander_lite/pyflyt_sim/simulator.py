@@ -176,27 +176,19 @@ class PyFlytSwarm(HostedDroneSwarm):
         for world in self.aviaries:
             for quad in world.drones:
                 apply_tuning(world, quad, tuning)
-        # Commands in flight, one slot per control period of latency; a reset swarm's slots hold "stay still".
-        self._in_flight = np.zeros((tuning.delay_periods(control_hz), num_envs, n, 3))
-        self._next_slot = 0
+        self._delay_commands(tuning.delay_periods(control_hz))
         self._hover = self._settle_hover(round(control_hz))
 
     # ------------------------------------------------------------------ Simulator API
     def reset(self, env_ids: np.ndarray, rng: np.random.Generator) -> None:
         super().reset(env_ids, rng)
-        self._in_flight[:, np.atleast_1d(env_ids)] = 0.0
         for env in np.atleast_1d(env_ids):
             self._reseed(int(env), rng)
             for drone in range(self.task.num_drones):
                 self._take_off_fresh(int(env), drone)
 
     def _fly_period(self, velocity: np.ndarray, active: np.ndarray) -> None:
-        if len(self._in_flight):  # the command sent latency_s ago arrives; this one takes its slot
-            slot = self._next_slot
-            arriving = self._in_flight[slot].copy()
-            self._in_flight[slot] = velocity
-            velocity = arriving
-            self._next_slot = (slot + 1) % len(self._in_flight)
+        velocity = self._arriving(velocity)  # the command given latency_s ago
         for env, aviary in enumerate(self.aviaries):
             for drone, quad in enumerate(aviary.drones):
                 if self.motors_stopped[env, drone]:

@@ -18,7 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from marlander_lite.envs.options import config_from_mapping
+from marlander_lite.envs.options import build_config, check_bounded_fields
+from marlander_lite.pointmass.hosted import TUNING_BOUNDS
 
 PYFLYT_TILT_LIMIT_DEG = math.degrees(0.4)
 """PyFlyt's ``cf2x`` tilt clamp: its ``lin_vel`` loop's output (an attitude setpoint, rad) is clipped at 0.4 rad."""
@@ -49,21 +50,8 @@ class PyFlytTuning:
     """False turns off PyFlyt's body drag (its ``drag_params``: linear and rotational), the rigid body alone."""
 
     def __post_init__(self) -> None:
-        for name, low, high, open_low in (
-            ("mass_scale", 0.5, 2.0, False),
-            ("latency_s", 0.0, 0.5, False),
-            ("outer_gain_scale", 0.0, 5.0, True),
-            ("inner_gain_scale", 0.0, 5.0, True),
-            ("tilt_limit_deg", 5.0, 80.0, False),
-        ):
-            value = getattr(self, name)
-            if value is None and name == "tilt_limit_deg":
-                continue
-            finite = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
-            inside = finite and (low < value if open_low else low <= value) and value <= high
-            if not inside:
-                bracket = "(" if open_low else "["
-                raise ValueError(f"PyFlytTuning.{name} must be a number in {bracket}{low:g}, {high:g}], got {value!r}.")
+        bounds = [*TUNING_BOUNDS, ("tilt_limit_deg", 5.0, 80.0, False)]
+        check_bounded_fields(self, bounds, optional=("tilt_limit_deg",))  # None keeps PyFlyt's clamp
         if not isinstance(self.body_drag, bool):
             raise ValueError(f"PyFlytTuning.body_drag must be True or False, got {self.body_drag!r}.")
 
@@ -74,11 +62,7 @@ class PyFlytTuning:
 
 def build_tuning(tuning: PyFlytTuning | Mapping[str, Any] | None) -> PyFlytTuning:
     """The option ``tuning`` as a :class:`PyFlytTuning`: one, a mapping of its fields, or None for none."""
-    if tuning is None or isinstance(tuning, PyFlytTuning):
-        return tuning or PyFlytTuning()
-    if not isinstance(tuning, Mapping):
-        raise TypeError(f"tuning must be a PyFlytTuning, a mapping of its fields or None, got {type(tuning).__name__}.")
-    return config_from_mapping(PyFlytTuning, tuning, "PyFlyt tuning")
+    return build_config(PyFlytTuning, tuning, "PyFlyt tuning")
 
 
 def apply_tuning(aviary: Any, quad: Any, tuning: PyFlytTuning) -> None:

@@ -12,6 +12,7 @@ from marlander_lite.envs.parallel_env import SwarmParallelEnv
 from marlander_lite.envs.vec_env import LandingVecEnv
 from marlander_lite.pointmass.hosted import control_periods
 from marlander_lite.rotorpy_sim.simulator import RotorPySwarm, crazyflie_params
+from marlander_lite.rotorpy_sim.tuning import RotorPyTuning, build_tuning
 
 
 @dataclass(frozen=True)
@@ -24,6 +25,9 @@ class RotorPyOptions(EnvOptions):
     """Changes to RotorPy's Crazyflie parameters (``{"k_v": 7.0}``); ``None``: as RotorPy publishes them."""
     aero: bool = True
     """RotorPy's rotor drag and induced inflow."""
+    tuning: RotorPyTuning | Mapping[str, Any] | None = None
+    """How every drone differs from the published Crazyflie: a :class:`~marlander_lite.rotorpy_sim.tuning.RotorPyTuning`
+    or a mapping of its fields (``{"mass_scale": 1.15, "latency_s": 0.06}``); None, as RotorPy publishes it."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -34,11 +38,23 @@ class RotorPyOptions(EnvOptions):
             raise TypeError(f"quad_params must be a mapping of RotorPy parameter names to values, got {kind}.")
         crazyflie_params(self.quad_params)
         control_periods(self.control_hz, self.task_config.policy_hz)
+        _ = self.tuning_config
+
+    @property
+    def tuning_config(self) -> RotorPyTuning:
+        """``tuning`` as a :class:`~marlander_lite.rotorpy_sim.tuning.RotorPyTuning`."""
+        return build_tuning(self.tuning)
 
     def make_simulator(self, num_envs: int = 1) -> RotorPySwarm:
         """``num_envs`` RotorPy swarms."""
         return RotorPySwarm(
-            self.task_config, self.platform_config, num_envs, self.control_hz, self.quad_params, self.aero
+            self.task_config,
+            self.platform_config,
+            num_envs,
+            self.control_hz,
+            self.quad_params,
+            self.aero,
+            self.tuning_config,
         )
 
 
@@ -74,7 +90,7 @@ class RotorPyLandingEnv(SwarmLandingEnv):
     ## Arguments
     ``gymnasium.make("marlander_lite/RotorPyLanding-v0", **fields)`` with the fields of :class:`RotorPyOptions`
     (``num_drones, platform, platform_speed, task, sensing`` as every env, and ``control_hz=96.0, quad_params=None,
-    aero=True``), or ``options=RotorPyOptions(...)``.
+    aero=True, tuning=None``), or ``options=RotorPyOptions(...)``.
     """
 
     def __init__(self, options: RotorPyOptions | None = None, **fields: Any) -> None:

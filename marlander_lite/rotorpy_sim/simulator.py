@@ -19,6 +19,10 @@ A 1 m/s step command along x in it rises from 10 to 90 % in 0.16 s, after 0.12 s
 0.47 s, the body tilting 33 degrees on the way: less damped than either PyBullet tracker (our PID does not overshoot,
 the firmware tracker by 9 %; ``tests/test_rotorpy.py``; docs/transfer.md, "RotorPy").
 
+Another RotorPy Crazyflie (:class:`~marlander_lite.rotorpy_sim.tuning.RotorPyTuning`): a mass its controller does not
+know about, command latency, other velocity- and attitude-loop gains; the random Crazyflies of
+:mod:`marlander_lite.experiments.variants` are drawn with it (``--variant-simulator rotorpy``).
+
 What is ours: the world around the drones. :class:`RotorPySwarm` is the point-mass simulator's world (plates and
 pads, their motion, the random starts, contacts with the floor and the plate, landed drones held on their pads: all
 inherited from :class:`~marlander_lite.pointmass.simulator.PointMassSwarm`) with RotorPy's Crazyflie flying in place of
@@ -38,6 +42,7 @@ import numpy as np
 from marlander_lite.platforms import PlatformConfig
 from marlander_lite.pointmass.hosted import HostedDroneSwarm, control_periods
 from marlander_lite.rotations import rotate_vector
+from marlander_lite.rotorpy_sim.tuning import RotorPyTuning
 from marlander_lite.task import TaskConfig
 
 ROTORPY_HINT = "the RotorPy simulator needs the rotorpy package: pip install -e .[rotorpy] (environment.lock pins it)"
@@ -51,6 +56,30 @@ def _rotorpy() -> tuple[type, dict[str, Any]]:
     except ImportError as error:  # pragma: no cover - depends on the installation
         raise ImportError(ROTORPY_HINT) from error
     return Multirotor, quad_params
+
+
+def _controller_with_assumed_body(multirotor: type) -> type:
+    """RotorPy's ``Multirotor`` whose controller may compute with an assumed mass and inertia instead of the body's.
+
+    RotorPy's ``cmd_vel`` controller reads ``self.mass`` and ``self.inertia``, which its dynamics read too; a drone
+    heavier than its controller believes needs the two apart. ``assumed`` (``(mass, inertia)`` or None) is what the
+    controller is told; the dynamics keep the body's.
+    """
+
+    class AssumedBodyMultirotor(multirotor):  # type: ignore[misc, valid-type]
+        assumed: tuple[float, np.ndarray] | None = None
+
+        def get_cmd_motor_speeds(self, state: dict, control: dict) -> np.ndarray:
+            if self.assumed is None:
+                return super().get_cmd_motor_speeds(state, control)
+            body = self.mass, self.inertia
+            self.mass, self.inertia = self.assumed
+            try:
+                return super().get_cmd_motor_speeds(state, control)
+            finally:
+                self.mass, self.inertia = body
+
+    return AssumedBodyMultirotor
 
 
 def crazyflie_params(changes: Mapping[str, Any] | None = None) -> dict[str, Any]:
@@ -81,6 +110,9 @@ class RotorPySwarm(HostedDroneSwarm):
             the policy rate. Default 96 Hz, four periods per 24 Hz action, the nearest to RotorPy's own 100 Hz.
         quad_params: changes to RotorPy's Crazyflie parameters (e.g. ``{"k_v": 7.0}``); ``None``: as published.
         aero: RotorPy's rotor drag and induced inflow (its default, on).
+        tuning: how every drone differs from the one ``quad_params`` describe: a mass its controller does not know
+            about, command latency, loop gains (:class:`~marlander_lite.rotorpy_sim.tuning.RotorPyTuning`); None,
+            none.
     """
 
     def __init__(
@@ -91,28 +123,36 @@ class RotorPySwarm(HostedDroneSwarm):
         control_hz: float = 96.0,
         quad_params: Mapping[str, Any] | None = None,
         aero: bool = True,
+        tuning: RotorPyTuning | None = None,
     ) -> None:
         periods = control_periods(control_hz, task_config.policy_hz)
         # The numpy engine: this class replaces the point mass's step, which the compiled engine would run.
         super().__init__(task_config, platform, num_envs, engine="numpy")
         multirotor, _ = _rotorpy()
-        params = crazyflie_params(quad_params)
+        tuning = tuning or RotorPyTuning()
+        assumed = crazyflie_params(quad_params)
+        params = tuning.vehicle_params(assumed)
         self.control_periods = periods
         """RotorPy control periods per policy step."""
         self.quad_params = params
-        """RotorPy's Crazyflie parameters as flown."""
+        """RotorPy's Crazyflie parameters as flown (the body's mass and inertia, the tuned gains)."""
+        self.tuning = tuning
+        """How the drones differ from the Crazyflie ``quad_params`` describe."""
         # RotorPy's integrator (RK45, scipy's tolerances) with its first step set to the whole period: left to choose,
         # scipy starts a near-hover flight at about 1 us and needs 32 evaluations a period instead of 7, for the same
         # states to 1e-6 m and m/s (tests/test_rotorpy.py).
         integrator = {"method": "RK45", "first_step": task_config.dt / self.control_periods}
+        vehicle = _controller_with_assumed_body(multirotor) if tuning.mass_scale != 1.0 else multirotor
         self._vehicle, self._unpowered = (
-            multirotor(
-                params, control_abstraction=control, aero=aero, enable_ground=False, integrator_kwargs=integrator
-            )
+            vehicle(params, control_abstraction=control, aero=aero, enable_ground=False, integrator_kwargs=integrator)
             for control in ("cmd_vel", "cmd_motor_speeds")
         )
+        if tuning.mass_scale != 1.0:  # the controller keeps the published mass and inertia
+            told = multirotor(assumed, control_abstraction="cmd_vel", aero=aero, enable_ground=False)
+            self._vehicle.assumed = (told.mass, told.inertia)
         self._hover_speed = float(np.sqrt(params["mass"] * self._vehicle.g / (params["num_rotors"] * params["k_eta"])))
         self._rotor_speeds = np.full((num_envs, task_config.num_drones, params["num_rotors"]), self._hover_speed)
+        self._delay_commands(tuning.delay_periods(control_hz))
 
     # ------------------------------------------------------------------ Simulator API
     def reset(self, env_ids: np.ndarray, rng: np.random.Generator) -> None:
@@ -120,6 +160,7 @@ class RotorPySwarm(HostedDroneSwarm):
         self._rotor_speeds[env_ids] = self._hover_speed
 
     def _fly_period(self, velocity: np.ndarray, active: np.ndarray) -> None:
+        velocity = self._arriving(velocity)  # the command given latency_s ago
         period = self._dt / self.control_periods
         for env, drone in zip(*np.nonzero(active), strict=True):
             self._advance(env, drone, velocity[env, drone], period)
