@@ -178,10 +178,9 @@ def check_targets(
             return math.isnan(value) or (value < bound if sense == "min" else value > bound)
 
         # The worst cell: a NaN first (it cannot be judged), then the farthest from the bound.
-        order = sorted(
+        worst = min(
             range(len(judged)), key=lambda i: (not math.isnan(values[i]), values[i] if sense == "min" else -values[i])
         )
-        worst = order[0]
         missed = [c for c, v in zip(judged, values, strict=True) if misses(v)]
         checks.append(
             TargetCheck(
