@@ -22,6 +22,7 @@ from marlander_lite.platforms import PlatformConfig
 from marlander_lite.rotations import vector_norm
 from marlander_lite.sensing import ObservationChannel, SensingConfig
 from marlander_lite.swarm.pad_acceleration import acceleration_step
+from marlander_lite.swarm.vertical_bias import VerticalBias
 from marlander_lite.task import PLATFORM_VELOCITY, TaskConfig
 
 
@@ -207,6 +208,10 @@ class LandingEpisodes:
         """With ``TaskConfig.pad_frame_lead_share``: each env's velocity tracker, identified from the commands flown
         and the observed velocities that followed (as the deployment loop identifies it from motion capture), which
         sets the lead; a new episode starts from the prior. None for a fixed lead."""
+        self.vertical_bias = VerticalBias(self.task.dt) if self.task.vertical_bias_compensation else None
+        """With ``TaskConfig.vertical_bias_compensation``: each drone's steady vertical velocity bias, identified from
+        the commands sent and the observed velocities that followed, and taken off its vertical commands; a new
+        episode starts with none. None without."""
         # The frames are stacked last, from what the policy would see now (TaskConfig.observation_history).
         self.history = ObservationHistory(self.task.observation_history, (e, n), self.task.frame_per_drone)
         self._channel_width = channel_width
@@ -277,11 +282,17 @@ class LandingEpisodes:
         return np.broadcast_to(flight_leads(self.task, self.lead_tracker), (self.num_envs,)).copy()
 
     def _identify_tracker(self, seen: np.ndarray, env_ids: np.ndarray | None = None) -> None:
-        """Feed the lead's tracker identification the observed ``p`` and ``v`` of eq. 2 (``seen``, one frame per env
-        in ``env_ids``; None: every env after a step) and the pads' velocities."""
+        """Feed the lead's tracker identification and the vertical bias's the observed ``p`` and ``v`` of eq. 2
+        (``seen``, one frame per env in ``env_ids``; None: every env after a step) and the pads' velocities."""
+        pad_vel = self.sim.state().pad_vel
+        if self.vertical_bias is not None:
+            if env_ids is None:
+                velocity = seen[..., task.EQ2_VELOCITY] + pad_vel
+                self.vertical_bias.observe(seen[..., task.EQ2_POSITION], velocity)
+            else:  # a new episode: nothing identified, and no sample across the reset
+                self.vertical_bias.reset(env_ids)
         if self.lead_tracker is None:
             return
-        pad_vel = self.sim.state().pad_vel
         if env_ids is None:
             self.lead_tracker.observe(seen[..., task.EQ2_POSITION], seen[..., task.EQ2_VELOCITY], pad_vel)
         else:
@@ -401,6 +412,9 @@ class LandingEpisodes:
             raise ValueError(f"Action batch has {velocity.shape[0]} environments; expected {self.num_envs}.")
         if cfg.command_frame != "world":
             velocity = task.in_command_frame(velocity, cfg, self.carried_pad_velocity())
+        if self.vertical_bias is not None:  # a flight setting: the bias identified so far taken off, and recorded
+            velocity = self.vertical_bias.compensate(velocity)
+            self.vertical_bias.commanded(velocity)
         if self.lead_tracker is not None:
             self.lead_tracker.commanded(velocity)
         self.sim.step(velocity)

@@ -211,6 +211,12 @@ class TaskConfig:
     (:mod:`marlander_lite.pad_frame_lead`); ``pad_frame_lead`` leads for the first half second. 0 to 2; 0: the fixed
     ``pad_frame_lead``. A flight setting (``--pad-frame-lead auto``), or trained with and then carried by the policy
     file, which flies it unless told otherwise."""
+    vertical_bias_compensation: bool = False
+    """Beyond the paper, a flight setting (``marlander transfer --vertical-bias``, the lab config's
+    ``limits.vertical_bias``): identify each drone's steady vertical velocity bias in flight, the climb or sink its
+    tracker adds to every command (a drone lighter or heavier than a controller without integral action believes), and
+    take it off the vertical commands sent (:mod:`marlander_lite.swarm.vertical_bias`). False: commands as the policy
+    gives them."""
     observation_history: int = 1
     """Beyond the paper: ``H``, how many of a drone's latest observation frames its observation holds, newest first
     (``H`` times :attr:`frame_per_drone` numbers; 1 to 8). A memoryless policy sees one instant; a few frames show it
@@ -228,6 +234,7 @@ class TaskConfig:
             (self.max_speed > 0, "max_speed must be > 0 m/s"),
             (self.policy_hz > 0, "policy_hz must be > 0 Hz"),
             (self.episode_seconds > 0, "episode_seconds must be > 0 s"),
+            (isinstance(self.vertical_bias_compensation, bool | np.bool_), "vertical_bias_compensation must be a bool"),
             (self.arena_half_width > 0 and self.arena_height > 0, "the arena sizes must be > 0 m"),
             (self.beta <= 0, "beta must be <= 0 (it penalises speed, eq. 5)"),
             (

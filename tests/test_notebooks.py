@@ -957,6 +957,7 @@ def check_08(shown: Shown) -> None:
     check_08_auto_lead(shown)
     check_08_auto_trained(shown)
     check_08_rotorpy_variants(shown)
+    check_08_vertical_bias(shown)
     # step responses (with and without RotorPy, and with PyFlyt), transfer bars, the pad's acceleration, the late
     # descent, the swing, the steeper cone's landing errors, PyFlyt held still, the opening family, the integrator,
     # the landing errors of 12 and 20 M steps in PyFlyt 0.22, the two networks on the same recipe, moving pads in the
@@ -1056,6 +1057,19 @@ def check_08_rotorpy_variants(shown: Shown) -> None:
     landed = shown_variant_counts(shown, pattern)
     assert len(landed) == 3 and "paper-moving-slow-trackers-fast-vertical-rotorpy-moving-lead-auto" in landed, landed
     assert "asked to hover: sinks at 0.196 m/s" in shown.text
+
+
+def check_08_vertical_bias(shown: Shown) -> None:
+    """Section 4zb: the RotorPy draw's counts without and with the vertical bias cancelled are the shipped csvs'; the
+    light variants land more episodes with it; flown here, the light drone lands with it and hovers without."""
+    landed = shown_variant_counts(shown, r"^RotorPy, (\S+): (\d+) / (\d+) of 40")
+    assert len(landed) == 2 and any(folder.endswith("-vertical-bias") for folder in landed), landed
+    light_lines = r"^    the 6 lighter than 0.92 x, \S+ 0.2-0.5 m/s: (\S+) %"
+    light = [float(p) for p in re.findall(light_lines, shown.text, re.MULTILINE)]
+    assert len(light) == 4 and light[2] > light[0] and light[3] > light[1], light
+    flown = re.findall(r"floor, vertical bias (left|cancelled): (\d+) of (\d+) landed", shown.text)
+    assert [m[0] for m in flown] == ["left", "cancelled"], flown
+    assert int(flown[0][1]) == 0 and int(flown[1][1]) == int(flown[1][2]) >= 1, flown
 
 
 def check_08_auto_trained(shown: Shown) -> None:

@@ -226,6 +226,7 @@ class LabConfig:
         command_frame: str = "world",
         pad_frame_lead: float = 0.0,
         pad_frame_lead_share: float = 0.0,
+        vertical_bias_compensation: bool = False,
     ) -> TaskConfig:
         """The MDP constants the policy must have been trained with.
 
@@ -243,6 +244,7 @@ class LabConfig:
             command_frame=command_frame,  # type: ignore[arg-type]  # TaskConfig checks it
             pad_frame_lead=pad_frame_lead,
             pad_frame_lead_share=pad_frame_lead_share,
+            vertical_bias_compensation=vertical_bias_compensation or bool(self.limits.vertical_bias),
         )
 
     def policy_options(self, options: dict[str, Any]) -> dict[str, Any]:

@@ -415,6 +415,7 @@ class Mission(LandingControl):
             out.action, velocity = self.runner.act(out.obs, est.goal, self.runner.carried_pad_velocity(est))
             out.unfiltered = velocity
             out.velocity = velocity if self.runner.safety_filter is None else self._filter(est, velocity)
+            out.velocity = self.runner.cancel_vertical_bias(out.velocity)  # limits.vertical_bias; else unchanged
             if not out.valid:
                 self.event("recovered", "the policy returns valid actions again")
             out.valid = True

@@ -45,6 +45,7 @@ from marlander_lite.pad_frame_lead import flight_leads, lead_tracker
 from marlander_lite.swarm.observation import shared_observations
 from marlander_lite.swarm.pad_acceleration import PadAcceleration
 from marlander_lite.swarm.safety_filter import SafetyFilterConfig, filter_commands
+from marlander_lite.swarm.vertical_bias import VerticalBias
 from marlander_lite.task import TaskConfig
 
 
@@ -122,6 +123,11 @@ class PolicyRunner:
         velocities that followed, once per policy step; None unless the filter's ``identified_lag_share`` or
         ``low_velocity_step_lag``, or the task's ``pad_frame_lead_share`` (``limits.pad_frame_lead: auto``), is set."""
         self._lag_at: float | None = None
+        self.vertical_bias = VerticalBias(task_config.dt) if task_config.vertical_bias_compensation else None
+        """Each drone's steady vertical velocity bias, identified from the setpoints sent and the velocities that
+        followed, once per policy step, and taken off the policy's vertical setpoints (:meth:`cancel_vertical_bias`);
+        None unless ``TaskConfig.vertical_bias_compensation`` (``limits.vertical_bias``) is set."""
+        self._bias_at: float | None = None
 
     @property
     def shared(self) -> bool:
@@ -159,6 +165,26 @@ class PolicyRunner:
         if self.safety_filter.low_velocity_step_lag > 0:
             self._identified_step = float(self.safety_filter.velocity_step(time_constant))
 
+    def identify_vertical_bias(self, est: SwarmEstimate) -> None:
+        """Update each drone's identified vertical bias from the estimate of a new policy step (once per estimate time
+        ``est.t``), under the setpoints sent since (:attr:`previous_command`); a step that did not last one policy
+        period (within half of one) gives no sample."""
+        if self.vertical_bias is None or self._bias_at == est.t:
+            return
+        if self._bias_at is not None:
+            self.vertical_bias.commanded(self.previous_command[None])
+            if abs(est.t - self._bias_at - self.task.dt) > 0.5 * self.task.dt:
+                self.vertical_bias.skip()
+        self._bias_at = est.t
+        self.vertical_bias.observe((est.pos - est.goal)[None], est.vel[None])
+
+    def cancel_vertical_bias(self, velocity: np.ndarray) -> np.ndarray:
+        """The setpoints ``velocity`` ``(N, 3)`` m/s with each drone's identified vertical bias taken off, clamped to
+        the policy's top speed; ``velocity`` itself without ``TaskConfig.vertical_bias_compensation``."""
+        if self.vertical_bias is None:
+            return velocity
+        return clamp_speed(self.vertical_bias.compensate(velocity[None])[0], self.max_speed)
+
     @property
     def velocity_step(self) -> float:
         """The step (m/s) of the filter's velocity-step limit; 0 without a filter. With ``low_velocity_step_lag``,
@@ -192,6 +218,7 @@ class PolicyRunner:
         (``(N, 22 H)``), the history advanced once per estimate time ``est.t``."""
         acceleration = self.pad_acceleration_estimate(est)
         self.identify_lag(est)
+        self.identify_vertical_bias(est)
         t, est = est.t, self.ahead(est)
         pad_vel = est.pad_vel if self.task.observe_platform_velocity else None
         command = self.previous_command if self.task.observe_previous_command else None

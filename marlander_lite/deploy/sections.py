@@ -184,6 +184,12 @@ class LimitsConfig:
     A tracker that answers at once wants less lead than a slow one: flown with 0.3 s instead of its 0.5 s,
     `moving-slow-trackers` landed 90 % or more in 22 of the 24 moving cells of its transfer matrix instead of 20
     (docs/transfer.md, "The safety filter on a pad-frame policy, and the lead a tracker wants")."""
+    vertical_bias: bool = False
+    """Identify each drone's steady vertical velocity bias in flight, the climb or sink its velocity tracker adds to
+    every setpoint when the drone is lighter or heavier than a controller without integral action assumes, and take it
+    off the vertical setpoints sent (:mod:`marlander_lite.swarm.vertical_bias`; at most 0.4 m/s, after a second of
+    flight). The Crazyflie firmware's velocity PID integrates such an error away; turn this on for a tracker that does
+    not (docs/transfer.md, "Random RotorPy Crazyflies")."""
 
 
 @with_config(SCHEMA_CONFIG)

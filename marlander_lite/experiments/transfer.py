@@ -213,6 +213,7 @@ def build_episodes(
     command_frame: str | None = None,
     pad_frame_lead: PadFrameLead | None = None,
     episode_seconds: float | None = None,
+    vertical_bias: bool = False,
 ) -> LandingEpisodes:
     """One swarm of ``column``'s simulator on ``row``'s platform, with the policy's task and no training aid.
 
@@ -225,6 +226,8 @@ def build_episodes(
         task_fields.update(lead_changes(pad_frame_lead))
     if episode_seconds is not None:  # a longer flight than the training episode (TransferConfig.episode_seconds)
         task_fields["episode_seconds"] = episode_seconds
+    if vertical_bias:  # a flight setting: the tracker's steady climb or sink identified and cancelled
+        task_fields["vertical_bias_compensation"] = True
     if policy.contract.is_shared:
         task_fields.pop("spawn_separation", None)
     options = dict(
@@ -252,6 +255,7 @@ def fly_cell(
     command_frame: str | None = None,
     pad_frame_lead: PadFrameLead | None = None,
     episode_seconds: float | None = None,
+    vertical_bias: bool = False,
 ) -> CellResult:
     """Fly ``episodes`` episodes of one cell (runs in a worker process). ``safety_filter``: None, or the settings
     (changes to :class:`SafetyFilterConfig`'s defaults, ``{}`` for none) of the deployment's safety filter
@@ -260,13 +264,17 @@ def fly_cell(
     the swarm size a shared policy flies (a centralised one flies its own). ``command_frame``: None (the policy's
     own) or the frame its commands are flown in (``TaskConfig.command_frame``), ``pad_frame_lead`` None, its lead (s)
     or ``"auto"`` (set in flight from the identified tracker, :mod:`marlander_lite.pad_frame_lead`),
-    ``episode_seconds`` None (the policy's training episode) or each episode's time limit (s).
+    ``episode_seconds`` None (the policy's training episode) or each episode's time limit (s), ``vertical_bias``
+    whether each drone's steady vertical velocity bias is identified in flight and cancelled
+    (:mod:`marlander_lite.swarm.vertical_bias`).
     """
     started = time.perf_counter()
     policy = load_policy(policy_path)
     column = column if isinstance(column, Column) else find_column(column)
     row = find_row(row_name)
-    world = build_episodes(policy, column, row, sensing, num_drones, command_frame, pad_frame_lead, episode_seconds)
+    world = build_episodes(
+        policy, column, row, sensing, num_drones, command_frame, pad_frame_lead, episode_seconds, vertical_bias
+    )
     cfg = world.task
     lag = tracker_lag(safety_filter, world.task)
     act = cell_actor(policy, world, safety_filter, lag)
@@ -451,6 +459,9 @@ class TransferConfig:
     """None: each episode lasts as long as the policy's training episodes (``TaskConfig.episode_seconds``, 10 s for
     every shipped policy). A number of seconds: that time limit instead, e.g. the paper protocol's 30 s
     (``marlander reproduce --time-limit``), for a tracker so slow that its drones land but take longer."""
+    vertical_bias: bool = False
+    """Whether each drone's steady vertical velocity bias (the climb or sink its tracker adds to every command) is
+    identified in flight and taken off its commands (``TaskConfig.vertical_bias_compensation``)."""
 
     def __post_init__(self) -> None:
         if isinstance(self.episodes, bool) or not isinstance(self.episodes, int) or self.episodes < 1:
@@ -477,6 +488,8 @@ class TransferConfig:
         seconds = self.episode_seconds
         if seconds is not None and (isinstance(seconds, bool) or not 1.0 <= seconds <= MAX_EPISODE_SECONDS):
             raise ValueError(f"--episode-seconds must be from 1 to {MAX_EPISODE_SECONDS:g} s, got {seconds!r}.")
+        if not isinstance(self.vertical_bias, bool):
+            raise ValueError(f"vertical_bias must be True or False, got {self.vertical_bias!r}.")
         if self.command_frame is not None and self.command_frame not in task.COMMAND_FRAMES:
             raise ValueError(
                 f"--command-frame must be one of {', '.join(task.COMMAND_FRAMES)}, got {self.command_frame!r}."
@@ -520,6 +533,7 @@ def transfer_matrix(config: TransferConfig, columns: Sequence[Column] | None = N
             config.command_frame,
             config.pad_frame_lead,
             config.episode_seconds,
+            config.vertical_bias,
         )
         for c, r in cells
     ]
@@ -605,6 +619,8 @@ def write_results(config: TransferConfig, results: list[CellResult], out: Path, 
     if config.episode_seconds is not None:
         trained_seconds = contract.task.get("episode_seconds", task.TaskConfig().episode_seconds)
         swarm += f"episodes of {config.episode_seconds:g} s (trained with {trained_seconds:g} s), "
+    if config.vertical_bias:
+        swarm += "the vertical bias identified in flight and cancelled, "
     md_path.write_text(
         f"Transfer matrix of `{config.policy}` ({swarm}{config.episodes} episodes a cell, seed {config.seed}, "
         f"sensing {config.sensing}{_filter_words(config.safety_filter)}): success % [95 % Wilson] / mean landing "

@@ -112,6 +112,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="each episode's time limit (default: the policy's training episode, 10 s; the paper protocol's is 30 s)",
     )
     p.add_argument(
+        "--vertical-bias",
+        action="store_true",
+        help="identify each drone's steady vertical velocity bias in flight (the climb or sink a tracker without "
+        "integral action adds when the drone's mass is not the one it assumes) and take it off the vertical commands "
+        "(marlander_lite.swarm.vertical_bias)",
+    )
+    p.add_argument(
         "--variants",
         type=int,
         default=None,
@@ -192,6 +199,7 @@ def run(args: argparse.Namespace) -> int:
         command_frame=args.command_frame,
         pad_frame_lead=args.pad_frame_lead,
         episode_seconds=args.episode_seconds,
+        vertical_bias=args.vertical_bias,
     )
     if args.variants is not None:
         return run_variants(args, config)

@@ -365,6 +365,8 @@ def write_variants(
         flown += f", its own pad lead, {describe_policy_lead(own)}"
     if config.episode_seconds is not None:
         flown += f", {config.episode_seconds:g} s episodes"
+    if config.vertical_bias:
+        flown += ", the vertical bias identified in flight and cancelled"
     md_path.write_text(
         f"`{config.policy}` on {len(variants)} random Crazyflies{where} (variant seed {variant_seed}; "
         f"{config.episodes} episodes a variant and row, {flown}).\n\n{format_summary(results, variants)}\n\n"

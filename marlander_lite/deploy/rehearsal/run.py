@@ -16,7 +16,7 @@ given; the result lists everything in the config's drone order.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -121,6 +121,7 @@ def rehearse(
     overwrite_log: bool = False,
     controller: str | None = None,
     hooks: Sequence[Callable[[Mission, float], None]] = (),
+    simulator_options: Mapping[str, Any] | None = None,
 ) -> RehearsalResult:
     """Fly the lab's mission in simulation and report how it ended.
 
@@ -136,6 +137,8 @@ def rehearse(
         overwrite_log: replace an existing file at ``log_path`` (otherwise it is refused).
         controller: the PyBullet drones' controller (see :func:`make_simulator`); None: its default.
         hooks: more mission hooks, called after the rehearsal's own at the start of every tick.
+        simulator_options: more keyword arguments of the simulator's swarm class (:func:`make_simulator`): a drone
+            unlike the published one, e.g. ``{"tuning": {"mass_scale": 0.87}}`` in RotorPy.
 
     Raises:
         ValueError: a fault that cannot happen in this lab (:meth:`FaultSpec.check`).
@@ -148,7 +151,7 @@ def rehearse(
     kind = current_simulator_name(simulator, "simulator", stacklevel=2) if simulator else sim_cfg.simulator
     if fault is not None:
         fault.check(lab.num_drones, fault_time_limit(lab))
-    world = SimulatedWorld(lab, make_simulator(lab, kind, controller=controller), seed=seed)
+    world = SimulatedWorld(lab, make_simulator(lab, kind, controller=controller, options=simulator_options), seed=seed)
     source = _pose_source(world, seed)
     flown = lab
     if lab.pad_assignment == "shortest":
@@ -160,9 +163,8 @@ def rehearse(
         by_pad = {d.pad: d for d in flown.drones}
         world_lab = dataclasses.replace(flown, drones=tuple(by_pad[d.pad] for d in lab.drones))
         starts = world.start_positions[[lab.drone_names.index(name) for name in world_lab.drone_names]]
-        world = SimulatedWorld(
-            world_lab, make_simulator(world_lab, kind, controller=controller), seed=seed, starts=starts
-        )
+        paired = make_simulator(world_lab, kind, controller=controller, options=simulator_options)
+        world = SimulatedWorld(world_lab, paired, seed=seed, starts=starts)
         source = _pose_source(world, seed)
     all_hooks: list[Any] = [_FirmwareEvents(world), _TimeLimit(sim_cfg.max_time_s)]
     injector = None if fault is None else FaultInjector(fault, world, source)

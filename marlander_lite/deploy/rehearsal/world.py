@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
+from collections.abc import Mapping
 from typing import Any, Literal, get_args
 
 import numpy as np
@@ -87,7 +88,12 @@ def world_platform(lab: LabConfig) -> PlatformConfig:
     return PlatformConfig(kind=sim.platform, speed=sim.platform_speed, geometry=geometry)
 
 
-def make_simulator(lab: LabConfig, kind: str | None = None, controller: Controller | None = None) -> Any:
+def make_simulator(
+    lab: LabConfig,
+    kind: str | None = None,
+    controller: Controller | None = None,
+    options: Mapping[str, Any] | None = None,
+) -> Any:
     """The one-environment swarm simulator ``kind`` of :mod:`marlander_lite.simulators` for the lab's world.
 
     Args:
@@ -98,9 +104,12 @@ def make_simulator(lab: LabConfig, kind: str | None = None, controller: Controll
             default: the Crazyflie firmware's velocity tracker, what runs on the drone) or ``pid``
             (the simulator's own cascaded PID, the one the policies were trained with). A simulator
             without a controller (the point mass) ignores it.
+        options: more keyword arguments of the simulator's swarm class, a drone unlike the published one: e.g.
+            ``{"tuning": {"mass_scale": 0.87}}`` for a RotorPy Crazyflie 13 % lighter than its controller believes
+            (:class:`~marlander_lite.rotorpy_sim.tuning.RotorPyTuning`). None: the simulator as it is.
 
     Raises:
-        ValueError: an unknown simulator or controller.
+        ValueError: an unknown simulator, controller or option.
         SimulatorUnavailable: the simulator's module cannot be imported (PyBullet missing, say).
     """
     kind = current_simulator_name(kind, "simulator", stacklevel=2) if kind else lab.simulation.simulator
@@ -113,9 +122,17 @@ def make_simulator(lab: LabConfig, kind: str | None = None, controller: Controll
     except (ModuleNotFoundError, AttributeError) as error:
         hint = "; rehearse with simulator 'pointmass' instead." if kind != "pointmass" else "."
         raise SimulatorUnavailable(f"The {kind} simulator ({entry.swarm}) is not available ({error}){hint}") from None
-    if "controller" in inspect.signature(swarm_class).parameters:
-        return swarm_class(task_config, platform, num_envs=1, controller=controller or DEFAULT_CONTROLLER)
-    return swarm_class(task_config, platform, num_envs=1)
+    accepted = inspect.signature(swarm_class).parameters
+    extra = dict(options or {})
+    unknown = sorted(set(extra) - set(accepted) | set(extra) & {"task_config", "platform", "num_envs", "controller"})
+    if unknown:
+        allowed = [p for p in accepted if p not in ("self", "task_config", "platform", "num_envs", "controller")]
+        raise ValueError(f"Unknown {kind} simulator option(s) {', '.join(unknown)}; allowed: {', '.join(allowed)}.")
+    if "tuning" in extra and isinstance(extra["tuning"], Mapping):
+        extra["tuning"] = entry.options_class()(tuning=extra["tuning"]).tuning_config  # checked: says what is allowed
+    if "controller" in accepted:
+        extra["controller"] = controller or DEFAULT_CONTROLLER
+    return swarm_class(task_config, platform, num_envs=1, **extra)
 
 
 class SimulatedWorld:
