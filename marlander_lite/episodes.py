@@ -284,6 +284,8 @@ class LandingEpisodes:
     def _identify_tracker(self, seen: np.ndarray, env_ids: np.ndarray | None = None) -> None:
         """Feed the lead's tracker identification and the vertical bias's the observed ``p`` and ``v`` of eq. 2
         (``seen``, one frame per env in ``env_ids``; None: every env after a step) and the pads' velocities."""
+        if self.vertical_bias is None and self.lead_tracker is None:
+            return  # the training path: nothing to identify, no state to read
         pad_vel = self.sim.state().pad_vel
         if self.vertical_bias is not None:
             if env_ids is None:

@@ -189,7 +189,7 @@ class LimitsConfig:
     every setpoint when the drone is lighter or heavier than a controller without integral action assumes, and take it
     off the vertical setpoints sent (:mod:`marlander_lite.swarm.vertical_bias`; at most 0.4 m/s, after a second of
     flight). The Crazyflie firmware's velocity PID integrates such an error away; turn this on for a tracker that does
-    not (docs/transfer.md, "Random RotorPy Crazyflies")."""
+    not (docs/transfer.md, "A climb the controller does not know about")."""
 
 
 @with_config(SCHEMA_CONFIG)

@@ -124,9 +124,10 @@ def make_simulator(
         raise SimulatorUnavailable(f"The {kind} simulator ({entry.swarm}) is not available ({error}){hint}") from None
     accepted = inspect.signature(swarm_class).parameters
     extra = dict(options or {})
-    unknown = sorted(set(extra) - set(accepted) | set(extra) & {"task_config", "platform", "num_envs", "controller"})
+    reserved = ("self", "task_config", "platform", "num_envs", "controller")  # set here, not by the options
+    allowed = [name for name in accepted if name not in reserved]
+    unknown = sorted(set(extra) - set(allowed))
     if unknown:
-        allowed = [p for p in accepted if p not in ("self", "task_config", "platform", "num_envs", "controller")]
         raise ValueError(f"Unknown {kind} simulator option(s) {', '.join(unknown)}; allowed: {', '.join(allowed)}.")
     if "tuning" in extra and isinstance(extra["tuning"], Mapping):
         extra["tuning"] = entry.options_class()(tuning=extra["tuning"]).tuning_config  # checked: says what is allowed
