@@ -199,6 +199,29 @@ def test_the_shipped_moving_slow_trackers_runs_are_their_preset_continued_from_a
     assert record["finished"]["steps"] == 26_017_792  # the source's 20 M steps and 6 M more
 
 
+def test_the_shipped_stiff_loops_run_is_its_preset_continued_from_the_shipped_moving_fine_tune():
+    from pathlib import Path
+
+    # Trained on 2026-12-02 as `marlander train --preset moving-slow-trackers --init-from
+    # data/runs/paper-moving-slow-trackers-fast-vertical --dynamics JSON`, the JSON being the moving-stiff-loops
+    # preset's dynamics, which was named after the run: the same resolved config but the preset's name.
+    runs = Path(__file__).resolve().parents[1] / "data" / "runs"
+    record = json.loads((runs / "paper-moving-stiff-loops" / "config.json").read_text())
+    source = "paper-moving-slow-trackers-fast-vertical"
+    source_train = TrainConfig.from_dict(json.loads((runs / source / "config.json").read_text())["train"])
+    preset = get_preset("moving-stiff-loops")
+    assert preset.dynamics == {**source_train.dynamics, "corner": preset.dynamics["corner"], "corner_fraction": 0.3}
+    observation = {f: False for f in OBSERVATION_OPTIONS} | {"observation_history": 1}
+    expected = preset.replace(
+        init_from=f"data/runs/{source}",
+        task={**preset.task, **observation},
+        net_arch=source_train.net_arch,
+        critic_arch=source_train.critic_arch,
+    )
+    assert TrainConfig.from_dict(record["train"]) == expected and record["preset"] == "moving-slow-trackers"
+    assert record["finished"]["steps"] == 32_030_720  # the source's 26.0 M steps and 6 M more
+
+
 @pytest.mark.parametrize(
     ("change", "message"),
     [

@@ -158,6 +158,55 @@ def test_family_and_legacy_randomization_do_not_mix() -> None:
         PointMassParams(randomization=0.3, family=DynamicsFamily())
 
 
+def _corner_swarm(fraction: float, num_envs: int = 600) -> PointMassSwarm:
+    corner = {"velocity_time_constant": (0.04, 0.06), "latency_s": (0.07, 0.08)}
+    params = PointMassParams(family=DynamicsFamily(), corner=corner, corner_fraction=fraction)
+    return PointMassSwarm(TaskConfig(num_drones=2), PlatformConfig(kind="static-floor"), num_envs, params)
+
+
+def test_a_corner_of_the_family_is_drawn_whole_by_its_share_of_the_drones_and_leaves_the_others_draws() -> None:
+    """``corner_fraction`` of the drones draw every property from the corner (its ranges, the family's elsewhere);
+    the other drones keep exactly the draws a swarm without the corner makes with the same seed."""
+    swarm, plain = _corner_swarm(0.3), _swarm(DynamicsFamily(), num_envs=600)
+    swarm.reset(np.arange(600), np.random.default_rng(3))
+    plain.reset(np.arange(600), np.random.default_rng(3))
+    tau = 1.0 / swarm._gain[..., 0]
+    latency = swarm._latency[..., 0] * TaskConfig().dt
+    picked = tau < 0.06 + 1e-12  # the family's own taus start at 0.08 s
+    # 1200 drones, 30 % each: 360 expected, binomial sd 15.9; 4 sd either side.
+    assert abs(picked.sum() - 360) < 64
+    assert np.all((latency[picked] >= 0.07 - 1e-12) & (latency[picked] <= 0.08 + 1e-12))
+    tilt = np.degrees(np.arctan(swarm._tan_tilt))
+    assert 15.0 <= tilt[picked].min() and tilt[picked].max() <= 35.0  # the family's range where the corner has none
+    np.testing.assert_array_equal(swarm._gain[~picked], plain._gain[~picked])
+    np.testing.assert_array_equal(swarm._latency[~picked], plain._latency[~picked])
+    again = _corner_swarm(0.3)
+    again.reset(np.arange(600), np.random.default_rng(3))
+    np.testing.assert_array_equal(again._gain, swarm._gain)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"corner": {"latency_s": (0.0, 0.05)}}, "corner of the family; give a family"),
+        ({"family": {}, "corner": {"latency_s": (0.0, 0.05)}}, "corner and corner_fraction"),
+        ({"family": {}, "corner_fraction": 0.2}, "corner and corner_fraction"),
+        ({"family": {}, "corner": {"latency_s": (0.0, 0.05)}, "corner_fraction": 1.5}, "in \\(0, 1\\]"),
+        ({"family": {}, "corner": {"latency_s": (0.05, 0.0)}, "corner_fraction": 0.2}, "empty range"),
+        ({"family": {}, "corner": {"stiffness": (0.0, 1.0)}, "corner_fraction": 0.2}, "Unknown DynamicsFamily"),
+    ],
+)
+def test_a_corner_without_a_family_a_share_or_valid_ranges_is_refused(kwargs: dict, message: str) -> None:
+    with pytest.raises((ValueError, TypeError), match=message):
+        PointMassParams(**kwargs)
+
+
+def test_a_corner_whose_commands_arrive_later_than_the_point_mass_holds_is_refused_at_the_start() -> None:
+    params = PointMassParams(family={}, corner={"latency_s": (0.05, 0.2)}, corner_fraction=0.2)
+    with pytest.raises(ValueError, match="more than two policy periods"):
+        PointMassSwarm(TaskConfig(), PlatformConfig(kind="static-floor"), 1, params)
+
+
 # ----------------------------------------------------------------------------- training aids
 
 

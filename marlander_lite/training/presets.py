@@ -440,6 +440,26 @@ both fine-tunes before landed 89.0 % on the held-out tracker's UR10, and 90 % or
 where the fine-tune before landed in 22 / 4, touching down too fast (docs/transfer.md, "The moving fine-tune on late
 commands")."""
 
+STIFF_LATE_CORNER = {
+    "velocity_time_constant": [0.04, 0.12],
+    "attitude_time_constant": [0.08, 0.25],
+    "latency_s": [0.03, 0.08],
+    "max_tilt_deg": [25.0, 50.0],
+}
+"""The corner of the family that ``moving-stiff-loops`` draws for :data:`STIFF_LATE_SHARE` of its drones
+(``PointMassParams.corner``): a velocity loop stiffer than the family's stiffest, over an attitude loop up to 0.25 s
+slow, commands 30-80 ms late and tilt clamps to 50 degrees, as RotorPy's ``cmd_vel`` loop with its gain at x1.15-1.5 and
+no clamp (docs/transfer.md, "The stiff, late loop"). Uniform draws from the family give it to about 0.1 % of drones."""
+
+STIFF_LATE_SHARE = 0.3
+"""Share of ``moving-stiff-loops``' drones drawn from :data:`STIFF_LATE_CORNER` at each reset."""
+
+_MOVING_STIFF_LOOPS = _MOVING_SLOW_TRACKERS.replace(
+    dynamics={**_MOVING_SLOW_TRACKERS.dynamics, "corner": STIFF_LATE_CORNER, "corner_fraction": STIFF_LATE_SHARE}
+)
+"""``moving-stiff-loops``: a ``moving-slow-trackers`` run (``--init-from``) continued 6 M steps on the same family and
+moving pads, with :data:`STIFF_LATE_SHARE` of the drones drawn from :data:`STIFF_LATE_CORNER`."""
+
 PRESETS: dict[str, TrainConfig] = {
     "quick-cpu": _QUICK,
     "quick-cpu-smooth": _QUICK_SMOOTH,
@@ -464,6 +484,7 @@ PRESETS: dict[str, TrainConfig] = {
         **SMOOTH_COMMANDS,
     ),
     "moving-slow-trackers": _MOVING_SLOW_TRACKERS,
+    "moving-stiff-loops": _MOVING_STIFF_LOOPS,
     "moving-crazyflie-finetune": _FINETUNE.replace(
         task={**_FINETUNE.task, "observe_platform_velocity": True}, **_MOVING_PLATFORMS
     ),
@@ -471,7 +492,7 @@ PRESETS: dict[str, TrainConfig] = {
 }
 """Named presets; see :func:`describe_presets`."""
 
-FINETUNE_PRESETS = ("crazyflie-finetune", "moving-crazyflie-finetune", "moving-slow-trackers")
+FINETUNE_PRESETS = ("crazyflie-finetune", "moving-crazyflie-finetune", "moving-slow-trackers", "moving-stiff-loops")
 """Presets that continue a trained run (``--init-from RUN``) rather than start from scratch."""
 
 PRESET_NOTES: dict[str, str] = {
@@ -493,6 +514,8 @@ PRESET_NOTES: dict[str, str] = {
     "moving-slow-trackers": "beyond the paper: continue a quick-cpu-slow-trackers run (--init-from) 6 M steps on "
     "moving pads, on the same family, with commands relative to the pad, which the loop carries (led by 0.5 s of its "
     "acceleration).",
+    "moving-stiff-loops": "beyond the paper: continue a moving-slow-trackers run (--init-from) 6 M steps with 30 % of "
+    "the drones on stiff, late velocity loops over slow attitude loops (RotorPy's at high gain).",
     "moving-crazyflie-finetune": "continue a 'moving' run in the PyBullet Crazyflie swarm, 3 M steps (~30 min).",
     "single-agent": "one drone (MorphoLander-style: applied per drone with APF repulsion), smooth commands, 8 M steps.",
 }
