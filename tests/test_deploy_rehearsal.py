@@ -492,3 +492,23 @@ def test_the_rehearsal_simulator_takes_a_drone_unlike_the_published_one():
         make_simulator(lab, "rotorpy", options={"wind": 1.0})
     with pytest.raises(ValueError, match="mass_scale"):
         make_simulator(lab, "rotorpy", options={"tuning": {"mass_scale": 9.0}})
+
+
+def test_the_stiff_loops_policy_lands_the_example_lab_on_a_stiff_late_rotorpy_drone_with_the_centring_off():
+    """RotorPy's ``cmd_vel`` loop with its gain at x1.24, commands 70 ms late and no tilt clamp (a simulator this
+    project did not write): flown through the example lab's mission with ``limits.pad_frame_lead: auto`` and the
+    filter's centring off, as docs/lab_guide.md advises for such a tracker, ``paper-moving-stiff-loops`` lands both
+    drones on their pads (the moving fine-tune it continues lands neither; docs/transfer.md, "The stiff, late loop")."""
+    pytest.importorskip("rotorpy")
+    lab = load_lab_config(EXAMPLE_CONFIG)
+    lab = dataclasses.replace(
+        lab,
+        limits=dataclasses.replace(lab.limits, pad_frame_lead="auto"),
+        safety_filter=dataclasses.replace(lab.safety_filter, centring_gain=0.0),
+    )
+    stiff_late = {"tuning": {"latency_s": 0.07, "outer_gain_scale": 1.24}}
+    policy = Path(__file__).resolve().parents[1] / "data" / "policies" / "paper-moving-stiff-loops.safetensors"
+    result = rehearse(lab, policy, simulator="rotorpy", seed=0, simulator_options=stiff_late)
+    assert list(result.mission.on_pad) == [True, True]
+    assert max(result.mission.landing_time) < 10.0  # s after the policy took over
+    assert np.all(result.final_speeds < 0.05) and not result.motors_on.any()

@@ -958,6 +958,7 @@ def check_08(shown: Shown) -> None:
     check_08_auto_trained(shown)
     check_08_rotorpy_variants(shown)
     check_08_vertical_bias(shown)
+    check_08_stiff_loops(shown)
     # step responses (with and without RotorPy, and with PyFlyt), transfer bars, the pad's acceleration, the late
     # descent, the swing, the steeper cone's landing errors, PyFlyt held still, the opening family, the integrator,
     # the landing errors of 12 and 20 M steps in PyFlyt 0.22, the two networks on the same recipe, moving pads in the
@@ -1070,6 +1071,23 @@ def check_08_vertical_bias(shown: Shown) -> None:
     flown = re.findall(r"floor, vertical bias (left|cancelled): (\d+) of (\d+) landed", shown.text)
     assert [m[0] for m in flown] == ["left", "cancelled"], flown
     assert int(flown[0][1]) == 0 and int(flown[1][1]) == int(flown[1][2]) >= 1, flown
+
+
+def check_08_stiff_loops(shown: Shown) -> None:
+    """Section 4zc: the stiff RotorPy draw's counts for the moving fine-tune and its continuation on the stiff corner
+    are the shipped csvs', and the continuation lands more of them; flown here, more on the point mass's corner."""
+    landed = shown_variant_counts(shown, r"^stiff RotorPy, (\S+): (\d+) / (\d+) of 16")
+    before, after = (
+        landed[f"{name}-rotorpy-stiff"]
+        for name in ("paper-moving-slow-trackers-fast-vertical", "paper-moving-stiff-loops")
+    )
+    assert after[0] > before[0] and after[1] > before[1], landed
+    flown = dict(
+        re.findall(
+            r"^(\S+) on the point mass, 0.06 s loop, 0.15 s attitude, 80 ms, line: (\d+) of \d+", shown.text, re.M
+        )
+    )
+    assert int(flown["paper-moving-stiff-loops"]) > int(flown["paper-moving-slow-trackers-fast-vertical"]), flown
 
 
 def check_08_auto_trained(shown: Shown) -> None:
