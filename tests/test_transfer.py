@@ -189,6 +189,7 @@ def test_a_corner_of_the_family_is_drawn_whole_by_its_share_of_the_drones_and_le
     ("kwargs", "message"),
     [
         ({"corner": {"latency_s": (0.0, 0.05)}}, "corner of the family; give a family"),
+        ({"corner": DynamicsFamily(), "corner_fraction": 0.2}, "corner of the family; give a family"),
         ({"family": {}, "corner": {"latency_s": (0.0, 0.05)}}, "corner and corner_fraction"),
         ({"family": {}, "corner_fraction": 0.2}, "corner and corner_fraction"),
         ({"family": {}, "corner": {"latency_s": (0.0, 0.05)}, "corner_fraction": 1.5}, "in \\(0, 1\\]"),

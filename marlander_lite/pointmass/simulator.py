@@ -83,17 +83,22 @@ class PointMassParams:
     """A corner of ``family`` that :attr:`corner_fraction` of the drones draw from instead (a training aid): a uniform
     draw almost never combines a stiff velocity loop with a slow attitude and late commands (about 0.1 % of drones),
     where the policies' last-centimetre corrections ring (docs/transfer.md, "The stiff, late loop"). As a mapping,
-    its ranges replace the family's and every other range is the family's. ``None``: every drone draws from
-    ``family``, with the draws of the runs before it."""
+    its ranges replace the family's and every other range is the family's; a curriculum that opens the family
+    (``TrainConfig.family_opening``) leaves the corner whole. ``None``: every drone draws from ``family``, with the
+    draws of the runs before it."""
     corner_fraction: float = 0.0
     """Share of the drones, in [0, 1], drawn from :attr:`corner` at each reset (each drone on its own)."""
 
     def __post_init__(self) -> None:
         if isinstance(self.family, dict):
             object.__setattr__(self, "family", DynamicsFamily.from_mapping(self.family))
+        if self.family is not None and not isinstance(self.family, DynamicsFamily):
+            raise TypeError(
+                f"PointMassParams.family must be a DynamicsFamily or a dict of its ranges, got {self.family!r}."
+            )
+        if self.corner is not None and self.family is None:
+            raise ValueError("PointMassParams.corner is a corner of the family; give a family as well.")
         if isinstance(self.corner, dict):
-            if self.family is None:
-                raise ValueError("PointMassParams.corner is a corner of the family; give a family as well.")
             wanted = {**self.family.to_dict(), **self.corner}
             object.__setattr__(self, "corner", DynamicsFamily.from_mapping(wanted))
         if self.corner is not None and not isinstance(self.corner, DynamicsFamily):
@@ -104,10 +109,6 @@ class PointMassParams:
             raise ValueError(
                 "PointMassParams: give corner and corner_fraction in (0, 1] together (a family for both), or neither; "
                 f"got corner {self.corner!r}, corner_fraction {self.corner_fraction!r}."
-            )
-        if self.family is not None and not isinstance(self.family, DynamicsFamily):
-            raise TypeError(
-                f"PointMassParams.family must be a DynamicsFamily or a dict of its ranges, got {self.family!r}."
             )
         if self.family is not None and self.randomization:
             raise ValueError("PointMassParams: give either randomization or family, not both (family replaces it).")
