@@ -185,6 +185,27 @@ def test_a_corner_of_the_family_is_drawn_whole_by_its_share_of_the_drones_and_le
     np.testing.assert_array_equal(again._gain, swarm._gain)
 
 
+def test_two_corners_take_their_shares_and_the_first_keeps_the_draws_of_a_run_with_it_alone() -> None:
+    """A drone draws from at most one corner; with ``(stiff, slow)`` at ``(0.3, 0.2)`` the drones outside the slow
+    corner get exactly the draws of a swarm with the stiff corner alone at 0.3, with the same seed."""
+    stiff = {"velocity_time_constant": (0.04, 0.06), "latency_s": (0.07, 0.08)}
+    slow = {"velocity_time_constant": (1.5, 2.0), "velocity_integral_gain": (0.2, 0.6)}
+    params = PointMassParams(family=DynamicsFamily(), corner=[stiff, slow], corner_fraction=[0.3, 0.2])
+    assert [share for _, share in params.corners] == [0.3, 0.2]
+    swarm = PointMassSwarm(TaskConfig(num_drones=2), PlatformConfig(kind="static-floor"), 600, params)
+    one = _corner_swarm(0.3)
+    swarm.reset(np.arange(600), np.random.default_rng(3))
+    one.reset(np.arange(600), np.random.default_rng(3))
+    tau = 1.0 / swarm._gain[..., 0]
+    in_stiff, in_slow = tau < 0.06 + 1e-12, tau > 1.5 - 1e-12  # the family's taus lie within [0.08, 0.4] s
+    assert not np.any(in_stiff & in_slow)
+    # 1200 drones: 360 and 240 expected, binomial sd 15.9 and 13.9; 4 sd either side.
+    assert abs(in_stiff.sum() - 360) < 64 and abs(in_slow.sum() - 240) < 56
+    assert np.all(swarm._integral_gain[in_slow] >= 0.2 - 1e-12) and np.all(swarm._integral_gain[in_slow] <= 0.6)
+    np.testing.assert_array_equal(swarm._gain[~in_slow], one._gain[~in_slow])
+    np.testing.assert_array_equal(swarm._latency[~in_slow], one._latency[~in_slow])
+
+
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [
@@ -195,6 +216,10 @@ def test_a_corner_of_the_family_is_drawn_whole_by_its_share_of_the_drones_and_le
         ({"family": {}, "corner": {"latency_s": (0.0, 0.05)}, "corner_fraction": 1.5}, "in \\(0, 1\\]"),
         ({"family": {}, "corner": {"latency_s": (0.05, 0.0)}, "corner_fraction": 0.2}, "empty range"),
         ({"family": {}, "corner": {"stiffness": (0.0, 1.0)}, "corner_fraction": 0.2}, "Unknown DynamicsFamily"),
+        ({"family": {}, "corner": [{}, {}], "corner_fraction": [0.6, 0.5]}, "sums to more than 1"),
+        ({"family": {}, "corner": [{}, {}], "corner_fraction": [0.2]}, "one share per corner"),
+        ({"family": {}, "corner": [{}, {}], "corner_fraction": [0.2, 0.0]}, "in \\(0, 1\\] for each corner"),
+        ({"family": {}, "corner": [{}, "stiff"], "corner_fraction": [0.2, 0.2]}, "a DynamicsFamily or a dict"),
     ],
 )
 def test_a_corner_without_a_family_a_share_or_valid_ranges_is_refused(kwargs: dict, message: str) -> None:

@@ -124,6 +124,64 @@ class DynamicsFamily:
         return name in EXTENSIONS and getattr(self, name) == (0.0, 0.0)
 
 
+Corners = tuple[tuple[DynamicsFamily, float], ...]
+"""Corners of a family, each with the share of the drones that draw from it (``PointMassParams.corner``)."""
+
+
+def family_corners(family: DynamicsFamily | None, corner: Any, fraction: Any) -> Corners:
+    """``PointMassParams.corner`` and ``corner_fraction`` as ``((corner, share), ...)``, checked.
+
+    ``corner`` is one corner or a list of them, each a :class:`DynamicsFamily` or a mapping of ranges that replace
+    ``family``'s (every other range is the family's); ``fraction`` is one share in (0, 1] or a list of them, one per
+    corner, summing to at most 1 (a drone draws from at most one corner). ``None`` and 0 give no corners.
+    """
+    if corner is None and not fraction:
+        return ()
+    if family is None:
+        raise ValueError("PointMassParams.corner is a corner of the family; give a family as well.")
+    several = isinstance(corner, list | tuple)
+    corners = list(corner) if several else [corner]
+    shares = list(fraction) if isinstance(fraction, list | tuple) else [fraction]
+    if corner is None or not fraction or len(shares) != len(corners) or not corners:
+        raise ValueError(
+            "PointMassParams: give corner and corner_fraction in (0, 1] together (a family for both), one share per "
+            f"corner, or neither; got corner {corner!r}, corner_fraction {fraction!r}."
+        )
+    checked = []
+    for each, share in zip(corners, shares, strict=True):
+        if isinstance(each, Mapping):
+            each = DynamicsFamily.from_mapping({**family.to_dict(), **each})
+        if not isinstance(each, DynamicsFamily):
+            raise TypeError(f"PointMassParams.corner must be a DynamicsFamily or a dict of its ranges, got {each!r}.")
+        if not (isinstance(share, int | float) and 0.0 < share <= 1.0):
+            raise ValueError(f"PointMassParams.corner_fraction must be in (0, 1] for each corner, got {fraction!r}.")
+        checked.append((each, float(share)))
+    if sum(share for _, share in checked) > 1.0 + 1e-12:
+        raise ValueError(f"PointMassParams.corner_fraction sums to more than 1 ({fraction!r}); a drone has one corner.")
+    return tuple(checked)
+
+
+def draw_with_corners(
+    family: DynamicsFamily, corners: Corners, rng: np.random.Generator, shape: tuple[int, ...]
+) -> dict[str, np.ndarray]:
+    """One draw per entry of ``shape`` from ``family``, then each drone moved to a corner with its share.
+
+    The family's draws come first and one uniform number per drone then picks its corner (the first corner for
+    ``u < share_1``, the second for ``share_1 <= u < share_1 + share_2``, ...), each corner drawn whole after it: a
+    seed keeps the family's draws of a run without corners, and one corner's the draws of the runs with one.
+    """
+    draw = family.sample(rng, shape)
+    if not corners:
+        return draw
+    pick, start = rng.random(shape), 0.0
+    for corner, share in corners:
+        picked = (pick >= start) & (pick < start + share)
+        drawn = corner.sample(rng, shape)
+        draw = {name: np.where(picked, drawn[name], value) for name, value in draw.items()}
+        start += share
+    return draw
+
+
 def checked_range(owner: str, name: str, value: Any, lowest: float, highest: float) -> Range:
     """``value`` as a ``(low, high)`` pair of floats within ``[lowest, highest]``.
 

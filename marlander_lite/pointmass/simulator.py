@@ -31,7 +31,13 @@ from marlander_lite.batch_layout import batch_empty, batch_full, batch_zeros
 from marlander_lite.episodes import SwarmState
 from marlander_lite.platforms import PlatformConfig, PlatformMotion
 from marlander_lite.pointmass import kernels, spawn_kernels
-from marlander_lite.pointmass.family import CUSHION_LENGTH, DynamicsFamily
+from marlander_lite.pointmass.family import (
+    CUSHION_LENGTH,
+    Corners,
+    DynamicsFamily,
+    draw_with_corners,
+    family_corners,
+)
 from marlander_lite.rotations import IDENTITY_QUAT, turn_angle, vector_norm
 from marlander_lite.task import TaskConfig
 
@@ -79,15 +85,21 @@ class PointMassParams:
     """Robust training (issue "policies that transfer"): each drone draws its own dynamics from this family at every
     reset, replacing the constants above (and ``randomization``), with latency, mass mismatch, drag, a ground
     cushion and a tracking-gain error on top. ``None`` (the default) keeps the fixed model above, bit for bit."""
-    corner: DynamicsFamily | None = None
-    """A corner of ``family`` that :attr:`corner_fraction` of the drones draw from instead (a training aid): a uniform
+    corner: DynamicsFamily | tuple[DynamicsFamily, ...] | None = None
+    """Corners of ``family`` that :attr:`corner_fraction` of the drones draw from instead (a training aid): a uniform
     draw almost never combines a stiff velocity loop with a slow attitude and late commands (about 0.1 % of drones),
-    where the policies' last-centimetre corrections ring (docs/transfer.md, "The stiff, late loop"). As a mapping,
-    its ranges replace the family's and every other range is the family's; a curriculum that opens the family
-    (``TrainConfig.family_opening``) leaves the corner whole. ``None``: every drone draws from ``family``, with the
-    draws of the runs before it."""
-    corner_fraction: float = 0.0
-    """Share of the drones, in [0, 1], drawn from :attr:`corner` at each reset (each drone on its own)."""
+    where the policies' last-centimetre corrections ring (docs/transfer.md, "The stiff, late loop"). One corner or a
+    list of them; as a mapping, a corner's ranges replace the family's and every other range is the family's; a
+    curriculum that opens the family (``TrainConfig.family_opening``) leaves the corners whole. ``None``: every drone
+    draws from ``family``, with the draws of the runs before it."""
+    corner_fraction: float | tuple[float, ...] = 0.0
+    """Share of the drones, in (0, 1], drawn from :attr:`corner` at each reset (each drone on its own); with several
+    corners one share each, summing to at most 1."""
+
+    @property
+    def corners(self) -> Corners:
+        """``((corner, share), ...)``: every corner with its share of the drones; empty without corners."""
+        return family_corners(self.family, self.corner, self.corner_fraction)
 
     def __post_init__(self) -> None:
         if isinstance(self.family, dict):
@@ -96,24 +108,15 @@ class PointMassParams:
             raise TypeError(
                 f"PointMassParams.family must be a DynamicsFamily or a dict of its ranges, got {self.family!r}."
             )
-        if self.corner is not None and self.family is None:
-            raise ValueError("PointMassParams.corner is a corner of the family; give a family as well.")
-        if isinstance(self.corner, dict):
-            wanted = {**self.family.to_dict(), **self.corner}
-            object.__setattr__(self, "corner", DynamicsFamily.from_mapping(wanted))
-        if self.corner is not None and not isinstance(self.corner, DynamicsFamily):
-            raise TypeError(
-                f"PointMassParams.corner must be a DynamicsFamily or a dict of its ranges, got {self.corner!r}."
-            )
-        if (self.corner is None) != (self.corner_fraction == 0.0) or not 0.0 <= self.corner_fraction <= 1.0:
-            raise ValueError(
-                "PointMassParams: give corner and corner_fraction in (0, 1] together (a family for both), or neither; "
-                f"got corner {self.corner!r}, corner_fraction {self.corner_fraction!r}."
-            )
+        corners = family_corners(self.family, self.corner, self.corner_fraction)
+        if corners and isinstance(self.corner, dict | DynamicsFamily):
+            object.__setattr__(self, "corner", corners[0][0])
+        elif corners:
+            object.__setattr__(self, "corner", tuple(each for each, _ in corners))
         if self.family is not None and self.randomization:
             raise ValueError("PointMassParams: give either randomization or family, not both (family replaces it).")
         for name, value in vars(self).items():
-            if name in ("family", "corner"):
+            if name in ("family", "corner", "corner_fraction"):
                 continue
             if not np.isfinite(value):
                 raise ValueError(f"PointMassParams.{name} must be finite, got {value!r}.")
@@ -391,8 +394,7 @@ class PointMassSwarm:
         Refuses a latency range reaching beyond two policy periods here, before any draw, so that a training run with
         it fails while it starts (and leaves nothing behind) rather than at its first reset.
         """
-        corner = self.params.corner
-        highest_latency = max(self.family.latency_s[1], corner.latency_s[1] if corner else 0.0)
+        highest_latency = max([self.family.latency_s[1]] + [c.latency_s[1] for c, _ in self.params.corners])
         if highest_latency > 2.0 * self._dt:
             raise ValueError(
                 f"latency_s up to {highest_latency:.3f} s is more than two policy periods ({2 * self._dt:.3f} s), "
@@ -431,12 +433,7 @@ class PointMassSwarm:
 
     def _draw_family(self, env_ids: np.ndarray, rng: np.random.Generator) -> None:
         shape = (len(env_ids), self.task.num_drones)
-        draw = self.family.sample(rng, shape)
-        if self.params.corner is not None:  # after the family's draws, so that a seed's family draws stay the same
-            picked = rng.random(shape) < self.params.corner_fraction
-            corner = self.params.corner.sample(rng, shape)
-            draw = {name: np.where(picked, corner[name], value) for name, value in draw.items()}
-        self._set_family(env_ids, draw)
+        self._set_family(env_ids, draw_with_corners(self.family, self.params.corners, rng, shape))
         self._commands[:, env_ids] = 0.0
         self._error_integral[env_ids] = 0.0
 

@@ -463,6 +463,32 @@ network's moving fine-tune (``paper-moving-stiff-loops``, 2026-12-02) it lands 1
 Crazyflies (arc / line) where its source landed 4 / 4, and PyFlyt 0.22's line 83.0 % where its source landed 90.0 %:
 for stiff trackers, not the default (docs/transfer.md, "The stiff, late loop")."""
 
+SLOW_LATE_CORNER = {
+    "velocity_time_constant": [0.6, 1.2],
+    "vertical_time_constant": [0.04, 0.08],
+    "latency_s": [0.03, 0.08],
+    "velocity_integral_gain": [0.2, 0.6],
+}
+"""The slow corner ``moving-two-corners`` draws as well: a horizontal loop of 0.6-1.2 s with integral action over a fast
+vertical one, commands 30-80 ms late, as PyFlyt's Crazyflie (identified: 0.76 s, 0.375 /s integral, 0.05 s vertical;
+docs/transfer.md, "PyFlyt")."""
+
+TWO_CORNER_SHARES = [0.2, 0.2]
+"""Shares of ``moving-two-corners``' drones drawn from :data:`STIFF_LATE_CORNER` and :data:`SLOW_LATE_CORNER`."""
+
+_MOVING_TWO_CORNERS = _MOVING_SLOW_TRACKERS.replace(
+    total_steps=5_000_000,
+    dynamics={
+        **_MOVING_SLOW_TRACKERS.dynamics,
+        "corner": [STIFF_LATE_CORNER, SLOW_LATE_CORNER],
+        "corner_fraction": TWO_CORNER_SHARES,
+    },
+)
+"""``moving-two-corners``: a ``moving-stiff-loops`` run (``--init-from``) continued 5 M steps with 20 % of the drones
+on the stiff, late corner and 20 % on the slow one. From ``paper-moving-stiff-loops`` (2026-12-02, not shipped: its
+transfer matrix did not finish) it kept the stiff RotorPy Crazyflies (14 / 13 of 16, arc / line) and landed PyFlyt
+0.22's line 90.5 % where the stiff-loops policy landed 83.0 % (docs/transfer.md, "Two corners")."""
+
 PRESETS: dict[str, TrainConfig] = {
     "quick-cpu": _QUICK,
     "quick-cpu-smooth": _QUICK_SMOOTH,
@@ -488,6 +514,7 @@ PRESETS: dict[str, TrainConfig] = {
     ),
     "moving-slow-trackers": _MOVING_SLOW_TRACKERS,
     "moving-stiff-loops": _MOVING_STIFF_LOOPS,
+    "moving-two-corners": _MOVING_TWO_CORNERS,
     "moving-crazyflie-finetune": _FINETUNE.replace(
         task={**_FINETUNE.task, "observe_platform_velocity": True}, **_MOVING_PLATFORMS
     ),
@@ -495,7 +522,13 @@ PRESETS: dict[str, TrainConfig] = {
 }
 """Named presets; see :func:`describe_presets`."""
 
-FINETUNE_PRESETS = ("crazyflie-finetune", "moving-crazyflie-finetune", "moving-slow-trackers", "moving-stiff-loops")
+FINETUNE_PRESETS = (
+    "crazyflie-finetune",
+    "moving-crazyflie-finetune",
+    "moving-slow-trackers",
+    "moving-stiff-loops",
+    "moving-two-corners",
+)
 """Presets that continue a trained run (``--init-from RUN``) rather than start from scratch."""
 
 PRESET_NOTES: dict[str, str] = {
@@ -520,6 +553,8 @@ PRESET_NOTES: dict[str, str] = {
     "moving-stiff-loops": "beyond the paper: continue a moving-slow-trackers run (--init-from) 6 M steps with 30 % of "
     "the drones on stiff, late velocity loops over slow attitude loops (RotorPy's at high gain); lands those, less on "
     "slow ones.",
+    "moving-two-corners": "beyond the paper: continue a moving-stiff-loops run (--init-from) 5 M steps with 20 % of "
+    "the drones on the stiff, late corner and 20 % on a slow one (PyFlyt's loop); not yet shipped.",
     "moving-crazyflie-finetune": "continue a 'moving' run in the PyBullet Crazyflie swarm, 3 M steps (~30 min).",
     "single-agent": "one drone (MorphoLander-style: applied per drone with APF repulsion), smooth commands, 8 M steps.",
 }
