@@ -51,6 +51,7 @@ from marlander_lite import task, training_aids
 from marlander_lite.crazyflie.perturb import HELD_OUT_TRACKER
 from marlander_lite.envs.options import policy_input
 from marlander_lite.episodes import LandingEpisodes, StepOutcome
+from marlander_lite.experiments.cell_journal import CellJournal
 from marlander_lite.experiments.metrics import TrialMetrics, wilson_interval
 from marlander_lite.experiments.protocol import trial_seed
 from marlander_lite.pad_frame_lead import (
@@ -512,11 +513,14 @@ class TransferConfig:
         return None
 
 
-def transfer_matrix(config: TransferConfig, columns: Sequence[Column] | None = None) -> list[CellResult]:
+def transfer_matrix(
+    config: TransferConfig, columns: Sequence[Column] | None = None, journal: CellJournal | None = None
+) -> list[CellResult]:
     """Fly every cell of ``config`` and return the results, rows outer, columns inner, in the given order.
 
     ``columns``: simulator settings to fly instead of ``config.columns`` (e.g. the random Crazyflies of
-    :mod:`~marlander_lite.experiments.variants`)."""
+    :mod:`~marlander_lite.experiments.variants`). ``journal``: the cells it holds are taken from it, not flown, and
+    each cell flown is recorded in it as soon as it is finished (:mod:`~marlander_lite.experiments.cell_journal`)."""
     n = config.swarm_size()  # fails before any worker starts
     flown: Sequence[str | Column] = config.columns if columns is None else columns
     cells = [(c, r) for r in config.rows for c in flown]
@@ -537,11 +541,26 @@ def transfer_matrix(config: TransferConfig, columns: Sequence[Column] | None = N
         )
         for c, r in cells
     ]
-    if config.workers == 1:
-        return [fly_cell(*a) for a in args]
-    method = "fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn"
-    with futures.ProcessPoolExecutor(config.workers, mp_context=multiprocessing.get_context(method)) as pool:
-        return list(pool.map(fly_cell, *zip(*args, strict=True)))
+    done = {} if journal is None else journal.done
+    results: list[CellResult | None] = [done.get((r, c if isinstance(c, str) else c.name)) for c, r in cells]
+    todo = [i for i, result in enumerate(results) if result is None]
+
+    def finished(i: int, result: CellResult) -> None:
+        results[i] = result
+        if journal is not None:
+            journal.record(result)
+
+    if config.workers == 1 or len(todo) <= 1:
+        for i in todo:
+            finished(i, fly_cell(*args[i]))
+    else:
+        method = "fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn"
+        workers = min(config.workers, len(todo))
+        with futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context(method)) as pool:
+            pending = {pool.submit(fly_cell, *args[i]): i for i in todo}
+            for done_future in futures.as_completed(pending):
+                finished(pending[done_future], done_future.result())
+    return [r for r in results if r is not None]
 
 
 def format_table(results: list[CellResult]) -> str:

@@ -17,11 +17,15 @@ Examples::
 Writes ``transfer.csv``, ``transfer.json`` and ``transfer.md`` to ``--out`` (default
 ``runs/transfer-<policy name>``) and prints the table; with ``--variants``, ``variants.csv``, ``.json`` and ``.md``
 (default ``runs/variants-<policy name>``). Existing files are kept unless ``--force``.
+
+Each finished cell is kept in ``--out`` as it is flown (``transfer.partial.jsonl``, ``variants.partial.jsonl``): run
+an interrupted command again, as it was, and it flies only the cells still missing (``--force`` flies them all again).
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import sys
 import time
@@ -29,11 +33,13 @@ from pathlib import Path
 
 from marlander_lite.experiments import targets as transfer_targets
 from marlander_lite.experiments import variants as random_variants
+from marlander_lite.experiments.cell_journal import CellJournal, matrix_fingerprint
 from marlander_lite.experiments.commands import _choices
 from marlander_lite.experiments.transfer import (
     COLUMNS,
     EXTRA_COLUMNS,
     ROWS,
+    Column,
     TransferConfig,
     format_flight_table,
     format_table,
@@ -45,6 +51,8 @@ from marlander_lite.swarm.safety_filter import parse_settings
 from marlander_lite.task import COMMAND_FRAMES
 
 OUTPUT_NAMES = ("transfer.csv", "transfer.json", "transfer.md")
+JOURNAL_NAME = "transfer.partial.jsonl"
+VARIANTS_JOURNAL_NAME = "variants.partial.jsonl"
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -175,6 +183,16 @@ def _variant_ranges(text: str) -> random_variants.VariantRanges:
         raise argparse.ArgumentTypeError(str(error)) from None
 
 
+def open_journal(config: TransferConfig, path: Path, force: bool, columns: list[Column] | None = None) -> CellJournal:
+    """The journal of this matrix at ``path``: an interrupted run's cells are resumed (``--force``: dropped)."""
+    digest = hashlib.sha256(Path(config.policy).read_bytes()).hexdigest()
+    journal = CellJournal(path, matrix_fingerprint(config, digest, columns), discard=force)
+    if journal.done:
+        total = len(config.rows) * (len(config.columns) if columns is None else len(columns))
+        print(f"Resuming: {len(journal.done)} of {total} cells read back from {path} (an interrupted run's)")
+    return journal
+
+
 def run(args: argparse.Namespace) -> int:
     if not args.policy.is_file():
         raise FileNotFoundError(f"--policy: no file {args.policy}")
@@ -207,12 +225,17 @@ def run(args: argparse.Namespace) -> int:
     existing = [out / name for name in OUTPUT_NAMES if (out / name).exists()]
     if existing and not args.force:
         raise ValueError(f"--out: {', '.join(map(str, existing))} already exist; choose another --out or add --force")
+    journal = open_journal(config, out / JOURNAL_NAME, args.force)
     cells = len(config.rows) * len(config.columns)
     print(f"Flying {args.policy} on {cells} cells x {config.episodes} episodes ({config.workers} workers) ...")
     started = time.perf_counter()
-    results = transfer_matrix(config)
-    wall = time.perf_counter() - started
+    try:
+        results = transfer_matrix(config, journal=journal)
+    except KeyboardInterrupt:
+        raise journal.interrupted() from None
+    wall = journal.earlier_wall_s + time.perf_counter() - started
     paths = write_results(config, results, out, wall)
+    journal.remove()
     print(format_table(results))
     print()
     print(format_flight_table(results))
@@ -232,11 +255,16 @@ def run_variants(args: argparse.Namespace, config: TransferConfig) -> int:
     existing = [out / name for name in random_variants.OUTPUT_NAMES if (out / name).exists()]
     if existing and not args.force:
         raise ValueError(f"--out: {', '.join(map(str, existing))} already exist; choose another --out or add --force")
+    journal = open_journal(config, out / VARIANTS_JOURNAL_NAME, args.force, [v.column() for v in drawn])
     print(f"Flying {args.policy} on {len(drawn)} random Crazyflies in {simulator}, {len(config.rows)} rows")
     started = time.perf_counter()
-    results = random_variants.fly_variants(config, drawn)
-    wall = time.perf_counter() - started
+    try:
+        results = random_variants.fly_variants(config, drawn, journal)
+    except KeyboardInterrupt:
+        raise journal.interrupted() from None
+    wall = journal.earlier_wall_s + time.perf_counter() - started
     paths = random_variants.write_variants(config, ranges, args.variant_seed, drawn, results, out, wall)
+    journal.remove()
     print(random_variants.format_summary(results, drawn))
     print(f"\n{wall:.0f} s; wrote {', '.join(map(str, paths))}", file=sys.stderr)
     return 0

@@ -38,6 +38,7 @@ import numpy as np
 
 from marlander_lite.crazyflie.control import PIDGains
 from marlander_lite.crazyflie.firmware import FirmwareGains
+from marlander_lite.experiments.cell_journal import CellJournal
 from marlander_lite.experiments.metrics import wilson_interval
 from marlander_lite.experiments.transfer import (
     CSV_FIELDS,
@@ -242,9 +243,12 @@ def _tracker(simulator: str, coin: bool) -> str:
     return "firmware" if coin else "pid"
 
 
-def fly_variants(config: TransferConfig, variants: Sequence[Variant]) -> list[CellResult]:
-    """Fly ``config``'s policy, rows and episodes on every variant (its columns are not flown): rows outer."""
-    return transfer_matrix(config, [v.column() for v in variants])
+def fly_variants(
+    config: TransferConfig, variants: Sequence[Variant], journal: CellJournal | None = None
+) -> list[CellResult]:
+    """Fly ``config``'s policy, rows and episodes on every variant (its columns are not flown): rows outer.
+    ``journal``: resume from and record into it (:func:`~marlander_lite.experiments.transfer.transfer_matrix`)."""
+    return transfer_matrix(config, [v.column() for v in variants], journal)
 
 
 @dataclass(frozen=True)
