@@ -959,6 +959,7 @@ def check_08(shown: Shown) -> None:
     check_08_rotorpy_variants(shown)
     check_08_vertical_bias(shown)
     check_08_stiff_loops(shown)
+    check_08_two_corners(shown)
     # step responses (with and without RotorPy, and with PyFlyt), transfer bars, the pad's acceleration, the late
     # descent, the swing, the steeper cone's landing errors, PyFlyt held still, the opening family, the integrator,
     # the landing errors of 12 and 20 M steps in PyFlyt 0.22, the two networks on the same recipe, moving pads in the
@@ -1088,6 +1089,21 @@ def check_08_stiff_loops(shown: Shown) -> None:
         )
     )
     assert int(flown["paper-moving-stiff-loops"]) > int(flown["paper-moving-slow-trackers-fast-vertical"]), flown
+
+
+def check_08_two_corners(shown: Shown) -> None:
+    """Section 4zd: the two-corner policy's stiff RotorPy counts are its shipped csv's and within one variant of the
+    stiff-loops policy's; the slow cells printed are the shipped matrices', and it lands PyFlyt 0.22's line more than
+    the stiff-loops policy."""
+    landed = shown_variant_counts(shown, r"^stiff RotorPy, (\S+): (\d+) / (\d+) of 16")
+    stiff, both = landed["paper-moving-stiff-loops-rotorpy-stiff"], landed["paper-moving-two-corners-rotorpy-stiff"]
+    assert all(b >= s - 1 for s, b in zip(stiff, both, strict=True)), landed
+    printed = dict(re.findall(r"^(paper-moving-\S+): PyFlyt Crazyflie 0.22, line ([\d.]+) %", shown.text, re.M))
+    for name in ("paper-moving-stiff-loops", "paper-moving-two-corners"):
+        cells = read_csv(RESULTS / "transfer" / name / "transfer.csv")
+        line = next(c for c in cells if (c["row"], c["column"]) == ("line 0.2-0.5 m/s", "PyFlyt Crazyflie 0.22"))
+        assert float(printed[name]) == pytest.approx(100 * float(line["success_rate"]), abs=0.05), printed
+    assert float(printed["paper-moving-two-corners"]) > float(printed["paper-moving-stiff-loops"]), printed
 
 
 def check_08_auto_trained(shown: Shown) -> None:

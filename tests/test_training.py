@@ -199,27 +199,47 @@ def test_the_shipped_moving_slow_trackers_runs_are_their_preset_continued_from_a
     assert record["finished"]["steps"] == 26_017_792  # the source's 20 M steps and 6 M more
 
 
-def test_the_shipped_stiff_loops_run_is_its_preset_continued_from_the_shipped_moving_fine_tune():
+def _continued_run(run: str, source: str, preset_name: str) -> tuple[dict, TrainConfig, TrainConfig]:
+    """A shipped corner run's config record, what its preset continued from ``source`` resolves to, and the source's."""
     from pathlib import Path
 
-    # Trained on 2026-12-02 as `marlander train --preset moving-slow-trackers --init-from
-    # data/runs/paper-moving-slow-trackers-fast-vertical --dynamics JSON`, the JSON being the moving-stiff-loops
-    # preset's dynamics, which was named after the run: the same resolved config but the preset's name.
     runs = Path(__file__).resolve().parents[1] / "data" / "runs"
-    record = json.loads((runs / "paper-moving-stiff-loops" / "config.json").read_text())
-    source = "paper-moving-slow-trackers-fast-vertical"
+    record = json.loads((runs / run / "config.json").read_text())
     source_train = TrainConfig.from_dict(json.loads((runs / source / "config.json").read_text())["train"])
-    preset = get_preset("moving-stiff-loops")
-    assert preset.dynamics == {**source_train.dynamics, "corner": preset.dynamics["corner"], "corner_fraction": 0.3}
-    observation = {f: False for f in OBSERVATION_OPTIONS} | {"observation_history": 1}
+    preset = get_preset(preset_name)
+    observation = {f: False for f in OBSERVATION_OPTIONS} | {"observation_history": 1}  # the source's, kept
     expected = preset.replace(
         init_from=f"data/runs/{source}",
         task={**preset.task, **observation},
         net_arch=source_train.net_arch,
         critic_arch=source_train.critic_arch,
     )
+    return record, expected, source_train
+
+
+def test_the_shipped_stiff_loops_run_is_its_preset_continued_from_the_shipped_moving_fine_tune():
+    # Trained on 2026-12-02 as `marlander train --preset moving-slow-trackers --init-from
+    # data/runs/paper-moving-slow-trackers-fast-vertical --dynamics JSON`, the JSON being the moving-stiff-loops
+    # preset's dynamics, which was named after the run: the same resolved config but the preset's name.
+    source = "paper-moving-slow-trackers-fast-vertical"
+    record, expected, source_train = _continued_run("paper-moving-stiff-loops", source, "moving-stiff-loops")
+    corner = expected.dynamics["corner"]
+    assert expected.dynamics == {**source_train.dynamics, "corner": corner, "corner_fraction": 0.3}
     assert TrainConfig.from_dict(record["train"]) == expected and record["preset"] == "moving-slow-trackers"
     assert record["finished"]["steps"] == 32_030_720  # the source's 26.0 M steps and 6 M more
+
+
+def test_the_shipped_two_corners_run_is_its_preset_continued_from_the_shipped_stiff_loops_run():
+    # Trained on 2026-12-02 as `marlander train --preset moving-two-corners --init-from
+    # data/runs/paper-moving-stiff-loops`: the preset itself, continued from the stiff-loops run.
+    record, expected, source_train = _continued_run(
+        "paper-moving-two-corners", "paper-moving-stiff-loops", "moving-two-corners"
+    )
+    corners = expected.dynamics["corner"]
+    assert expected.dynamics == {**source_train.dynamics, "corner": corners, "corner_fraction": [0.2, 0.2]}
+    assert corners[0] == source_train.dynamics["corner"]  # the stiff corner kept, the slow one added
+    assert TrainConfig.from_dict(record["train"]) == expected and record["preset"] == "moving-two-corners"
+    assert record["finished"]["steps"] == 32_030_720 + 5_013_504  # the source's steps and 5 M more (whole rollouts)
 
 
 @pytest.mark.parametrize(

@@ -485,9 +485,10 @@ _MOVING_TWO_CORNERS = _MOVING_SLOW_TRACKERS.replace(
     },
 )
 """``moving-two-corners``: a ``moving-stiff-loops`` run (``--init-from``) continued 5 M steps with 20 % of the drones
-on the stiff, late corner and 20 % on the slow one. From ``paper-moving-stiff-loops`` (2026-12-02, not shipped: its
-transfer matrix did not finish) it kept the stiff RotorPy Crazyflies (14 / 13 of 16, arc / line) and landed PyFlyt
-0.22's line 90.5 % where the stiff-loops policy landed 83.0 % (docs/transfer.md, "Two corners")."""
+on the stiff, late corner and 20 % on the slow one. From ``paper-moving-stiff-loops``: ``paper-moving-two-corners``
+(2026-12-02), which kept the stiff RotorPy Crazyflies (14 / 13 of 16, arc / line), landed PyFlyt 0.22's line 90.5 %
+where the stiff-loops policy landed 83.0 %, and lands 23 of the 24 moving cells of its matrix at 90 % or more
+(docs/transfer.md, "Two corners, shipped")."""
 
 PRESETS: dict[str, TrainConfig] = {
     "quick-cpu": _QUICK,
@@ -554,7 +555,7 @@ PRESET_NOTES: dict[str, str] = {
     "the drones on stiff, late velocity loops over slow attitude loops (RotorPy's at high gain); lands those, less on "
     "slow ones.",
     "moving-two-corners": "beyond the paper: continue a moving-stiff-loops run (--init-from) 5 M steps with 20 % of "
-    "the drones on the stiff, late corner and 20 % on a slow one (PyFlyt's loop); not yet shipped.",
+    "the drones on the stiff, late corner and 20 % on a slow one (PyFlyt's loop); lands both kinds of tracker.",
     "moving-crazyflie-finetune": "continue a 'moving' run in the PyBullet Crazyflie swarm, 3 M steps (~30 min).",
     "single-agent": "one drone (MorphoLander-style: applied per drone with APF repulsion), smooth commands, 8 M steps.",
 }
