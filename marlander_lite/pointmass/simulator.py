@@ -178,6 +178,7 @@ class PointMassSwarm:
         self._thrust_max = batch_full((e, 1), GRAVITY + prm.max_climb_acceleration)
         self._thrust_min = batch_full((e, 1), GRAVITY - prm.max_sink_acceleration)
         self.family = prm.family
+        self._corners = prm.corners  # checked once here, not at every reset
         if self.family is not None:
             self._init_family(e, n)
         self.time = np.zeros(e)
@@ -394,7 +395,7 @@ class PointMassSwarm:
         Refuses a latency range reaching beyond two policy periods here, before any draw, so that a training run with
         it fails while it starts (and leaves nothing behind) rather than at its first reset.
         """
-        highest_latency = max([self.family.latency_s[1]] + [c.latency_s[1] for c, _ in self.params.corners])
+        highest_latency = max([self.family.latency_s[1]] + [c.latency_s[1] for c, _ in self._corners])
         if highest_latency > 2.0 * self._dt:
             raise ValueError(
                 f"latency_s up to {highest_latency:.3f} s is more than two policy periods ({2 * self._dt:.3f} s), "
@@ -433,7 +434,7 @@ class PointMassSwarm:
 
     def _draw_family(self, env_ids: np.ndarray, rng: np.random.Generator) -> None:
         shape = (len(env_ids), self.task.num_drones)
-        self._set_family(env_ids, draw_with_corners(self.family, self.params.corners, rng, shape))
+        self._set_family(env_ids, draw_with_corners(self.family, self._corners, rng, shape))
         self._commands[:, env_ids] = 0.0
         self._error_integral[env_ids] = 0.0
 
