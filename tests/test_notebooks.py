@@ -960,13 +960,15 @@ def check_08(shown: Shown) -> None:
     check_08_vertical_bias(shown)
     check_08_stiff_loops(shown)
     check_08_two_corners(shown)
+    check_08_two_corners_random(shown)
     # step responses (with and without RotorPy, and with PyFlyt), transfer bars, the pad's acceleration, the late
     # descent, the swing, the steeper cone's landing errors, PyFlyt held still, the opening family, the integrator,
     # the landing errors of 12 and 20 M steps in PyFlyt 0.22, the two networks on the same recipe, moving pads in the
     # pad frame, success on random Crazyflies in PyBullet and in PyFlyt, the preset before and since 2026-12-01 there,
     # the moving fine-tune before and on late commands, the paper's network before and on late commands, where a
-    # pad-frame drone touches down for each lead, the line's success by lead, the line on random RotorPy Crazyflies
-    assert shown.figures == 22
+    # pad-frame drone touches down for each lead, the line's success by lead, the line on random RotorPy Crazyflies,
+    # the two-corner policy's line on them
+    assert shown.figures == 23
 
 
 def shown_variant_counts(shown: Shown, pattern: str) -> dict[str, list[int]]:
@@ -1104,6 +1106,43 @@ def check_08_two_corners(shown: Shown) -> None:
         line = next(c for c in cells if (c["row"], c["column"]) == ("line 0.2-0.5 m/s", "PyFlyt Crazyflie 0.22"))
         assert float(printed[name]) == pytest.approx(100 * float(line["success_rate"]), abs=0.05), printed
     assert float(printed["paper-moving-two-corners"]) > float(printed["paper-moving-stiff-loops"]), printed
+
+
+def check_08_two_corners_random(shown: Shown) -> None:
+    """Section 4ze: the 40-variant counts printed for the two-corner policy are its shipped csvs'; each kind of drone
+    printed is counted from the csv and the drawn values again here, and the kinds make up the whole draw."""
+    pattern = r"^40 random (?:PyFlyt|RotorPy) Crazyflies, (\S+): (\d+) / (\d+) of 40"
+    landed = shown_variant_counts(shown, pattern)
+    two_corners = {f"paper-moving-two-corners-{sim}-moving-lead-auto" for sim in ("pyflyt", "rotorpy")}
+    assert two_corners <= set(landed), landed
+
+    def light(c: dict) -> bool:
+        return float(c["mass_scale"]) < 0.92
+
+    def stiff(c: dict) -> bool:
+        return float(c["outer_gain_scale"]) > 1.15
+
+    kinds = {  # the notebook's split, restated from the csv's own columns
+        "0.21.0 order": lambda c: c["controller"] == "pyflyt 0.21.0",
+        "0.22 order": lambda c: c["controller"] == "pyflyt 0.22",
+        "lighter than 0.92 x": light,
+        "stiff (velocity gain over x1.15)": lambda c: not light(c) and stiff(c),
+        "the others": lambda c: not light(c) and not stiff(c),
+    }
+    block = r"^40 random \w+ Crazyflies, {}: .*\n((?:    .*\n)+)"
+    for folder in two_corners:
+        cells = read_csv(RESULTS / "variants" / folder / "variants.csv")
+        printed = re.search(block.format(re.escape(folder)), shown.text, re.M)
+        assert printed, folder
+        found = re.findall(r"^    (.+), (\d+) drones: (\d+) / (\d+) at 90 % or more", printed.group(1), re.M)
+        assert sum(int(n) for _, n, _, _ in found) == 40, found
+        for kind, drones, arc, line in found:
+            mine = [c for c in cells if kinds[kind](c)]
+            counts = [sum(float(c["success_rate"]) >= 0.9 for c in mine if c["row"] == row) for row in MOVING_ROWS]
+            assert (int(drones), [int(arc), int(line)]) == (len(mine) // 2, counts), (folder, kind)
+    before = landed["paper-moving-slow-trackers-fast-vertical-rotorpy-moving-lead-auto"]
+    after = landed["paper-moving-two-corners-rotorpy-moving-lead-auto"]
+    assert all(a > b for a, b in zip(after, before, strict=True)), landed  # the section's claim: more RotorPy drones
 
 
 def check_08_auto_trained(shown: Shown) -> None:
