@@ -229,12 +229,13 @@ def test_the_shipped_stiff_loops_run_is_its_preset_continued_from_the_shipped_mo
     assert record["finished"]["steps"] == 32_030_720  # the source's 26.0 M steps and 6 M more
 
 
-def test_the_shipped_two_corners_run_is_its_preset_continued_from_the_shipped_stiff_loops_run():
+@pytest.mark.parametrize(("run", "seed"), [("paper-moving-two-corners", 0), ("paper-moving-two-corners-seed1", 1)])
+def test_the_shipped_two_corners_run_is_its_preset_continued_from_the_shipped_stiff_loops_run(run, seed):
     # Trained on 2026-12-02 as `marlander train --preset moving-two-corners --init-from
-    # data/runs/paper-moving-stiff-loops`: the preset itself, continued from the stiff-loops run.
-    record, expected, source_train = _continued_run(
-        "paper-moving-two-corners", "paper-moving-stiff-loops", "moving-two-corners"
-    )
+    # data/runs/paper-moving-stiff-loops` (and on 2026-12-03 with `--seed 1`): the preset itself, continued from the
+    # stiff-loops run.
+    record, expected, source_train = _continued_run(run, "paper-moving-stiff-loops", "moving-two-corners")
+    expected = expected.replace(seed=seed)
     corners = expected.dynamics["corner"]
     assert expected.dynamics == {**source_train.dynamics, "corner": corners, "corner_fraction": [0.2, 0.2]}
     assert corners[0] == source_train.dynamics["corner"]  # the stiff corner kept, the slow one added
