@@ -1096,7 +1096,7 @@ def check_08_stiff_loops(shown: Shown) -> None:
 def check_08_two_corners(shown: Shown) -> None:
     """Section 4zd: the two-corner policy's stiff RotorPy counts are its shipped csv's and within one variant of the
     stiff-loops policy's; the slow cells printed are the shipped matrices', and it lands PyFlyt 0.22's line more than
-    the stiff-loops policy."""
+    the stiff-loops policy; the counts printed for seeds 0 and 1 are their shipped matrices'."""
     landed = shown_variant_counts(shown, r"^stiff RotorPy, (\S+): (\d+) / (\d+) of 16")
     stiff, both = landed["paper-moving-stiff-loops-rotorpy-stiff"], landed["paper-moving-two-corners-rotorpy-stiff"]
     assert all(b >= s - 1 for s, b in zip(stiff, both, strict=True)), landed
@@ -1106,14 +1106,30 @@ def check_08_two_corners(shown: Shown) -> None:
         line = next(c for c in cells if (c["row"], c["column"]) == ("line 0.2-0.5 m/s", "PyFlyt Crazyflie 0.22"))
         assert float(printed[name]) == pytest.approx(100 * float(line["success_rate"]), abs=0.05), printed
     assert float(printed["paper-moving-two-corners"]) > float(printed["paper-moving-stiff-loops"]), printed
+    pattern = (
+        r"^(paper-moving-two-corners(?:-seed1)?): moving cells at 90 % or more (\d+) of 24, static cells at 95 % or "
+        r"more (\d+) of 24; worst moving cell ([\d.]+) %"
+    )
+    seeds = re.findall(pattern, shown.text, re.M)
+    assert [name for name, *_ in seeds] == ["paper-moving-two-corners", "paper-moving-two-corners-seed1"], seeds
+    for name, moving, static, worst in seeds:
+        cells = read_csv(RESULTS / "transfer" / name / "transfer.csv")
+        rates = {
+            row: [float(c["success_rate"]) for c in cells if c["row"] in row]
+            for row in (MOVING_ROWS, ("floor", "UR10"))
+        }
+        assert int(moving) == sum(r >= 0.9 for r in rates[MOVING_ROWS]), name
+        assert int(static) == sum(r >= 0.95 for r in rates["floor", "UR10"]), name
+        assert float(worst) == pytest.approx(100 * min(rates[MOVING_ROWS]), abs=0.05), name
 
 
 def check_08_two_corners_random(shown: Shown) -> None:
-    """Section 4ze: the 40-variant counts printed for the two-corner policy are its shipped csvs'; each kind of drone
-    printed is counted from the csv and the drawn values again here, and the kinds make up the whole draw."""
+    """Section 4ze: the 40-variant counts printed for the two-corner policy (and its seed 1 in RotorPy) are the shipped
+    csvs'; each kind of drone printed is counted from the csv's drawn values again here, and the kinds make up the whole
+    draw; each seed lands more RotorPy drones than the moving fine-tune."""
     pattern = r"^40 random (?:PyFlyt|RotorPy) Crazyflies, (\S+): (\d+) / (\d+) of 40"
     landed = shown_variant_counts(shown, pattern)
-    two_corners = {f"paper-moving-two-corners-{sim}-moving-lead-auto" for sim in ("pyflyt", "rotorpy")}
+    two_corners = {f"paper-moving-two-corners-{sim}-moving-lead-auto" for sim in ("pyflyt", "rotorpy", "seed1-rotorpy")}
     assert two_corners <= set(landed), landed
 
     def light(c: dict) -> bool:
@@ -1141,8 +1157,9 @@ def check_08_two_corners_random(shown: Shown) -> None:
             counts = [sum(float(c["success_rate"]) >= 0.9 for c in mine if c["row"] == row) for row in MOVING_ROWS]
             assert (int(drones), [int(arc), int(line)]) == (len(mine) // 2, counts), (folder, kind)
     before = landed["paper-moving-slow-trackers-fast-vertical-rotorpy-moving-lead-auto"]
-    after = landed["paper-moving-two-corners-rotorpy-moving-lead-auto"]
-    assert all(a > b for a, b in zip(after, before, strict=True)), landed  # the section's claim: more RotorPy drones
+    for seed in ("", "-seed1"):  # the section's claim: each seed lands more RotorPy drones than the fine-tune
+        after = landed[f"paper-moving-two-corners{seed}-rotorpy-moving-lead-auto"]
+        assert all(a > b for a, b in zip(after, before, strict=True)), landed
 
 
 def check_08_auto_trained(shown: Shown) -> None:
