@@ -1124,12 +1124,20 @@ def check_08_two_corners(shown: Shown) -> None:
 
 
 def check_08_two_corners_random(shown: Shown) -> None:
-    """Section 4ze: the 40-variant counts printed for the two-corner policy (and its seed 1 in RotorPy) are the shipped
-    csvs'; each kind of drone printed is counted from the csv's drawn values again here, and the kinds make up the whole
-    draw; each seed lands more RotorPy drones than the moving fine-tune."""
+    """Section 4ze: the 40-variant counts printed for the two-corner policy (and, in RotorPy, its seed 1 and its flight
+    with the vertical bias cancelled) are the shipped csvs'; each kind of drone printed is counted from the csv's drawn
+    values again here, and the kinds make up the whole draw; each seed lands more RotorPy drones than the fine-tune."""
     pattern = r"^40 random (?:PyFlyt|RotorPy) Crazyflies, (\S+): (\d+) / (\d+) of 40"
     landed = shown_variant_counts(shown, pattern)
-    two_corners = {f"paper-moving-two-corners-{sim}-moving-lead-auto" for sim in ("pyflyt", "rotorpy", "seed1-rotorpy")}
+    two_corners = {
+        f"paper-moving-two-corners-{draw}"
+        for draw in (
+            "pyflyt-moving-lead-auto",
+            "rotorpy-moving-lead-auto",
+            "seed1-rotorpy-moving-lead-auto",
+            "rotorpy-moving-lead-auto-vertical-bias",
+        )
+    }
     assert two_corners <= set(landed), landed
 
     def light(c: dict) -> bool:
