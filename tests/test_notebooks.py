@@ -1127,7 +1127,7 @@ def check_08_two_corners_random(shown: Shown) -> None:
     """Section 4ze: the 40-variant counts printed for the two-corner policy (its seed 1, and in RotorPy its flight with
     the vertical bias cancelled) are the shipped csvs'; each kind of drone printed is counted from the csv's drawn
     values again here, and the kinds make up the whole draw; each seed lands more RotorPy drones than the fine-tune."""
-    pattern = r"^40 random (?:PyFlyt|RotorPy) Crazyflies, (\S+): (\d+) / (\d+) of 40"
+    pattern = r"^random (?:PyFlyt|RotorPy) draw, (\S+): (\d+) / (\d+) of 40"
     landed = shown_variant_counts(shown, pattern)
     two_corners = {
         f"paper-moving-two-corners-{draw}"
@@ -1154,7 +1154,7 @@ def check_08_two_corners_random(shown: Shown) -> None:
         "stiff (velocity gain over x1.15)": lambda c: not light(c) and stiff(c),
         "the others": lambda c: not light(c) and not stiff(c),
     }
-    block = r"^40 random \w+ Crazyflies, {}: .*\n((?:    .*\n)+)"
+    block = r"^random \w+ draw, {}: .*\n((?:    .*\n)+)"
     for folder in two_corners:
         cells = read_csv(RESULTS / "variants" / folder / "variants.csv")
         printed = re.search(block.format(re.escape(folder)), shown.text, re.M)
