@@ -488,7 +488,8 @@ _MOVING_TWO_CORNERS = _MOVING_SLOW_TRACKERS.replace(
 on the stiff, late corner and 20 % on the slow one. From ``paper-moving-stiff-loops``: ``paper-moving-two-corners``
 (2026-12-02), which kept the stiff RotorPy Crazyflies (14 / 13 of 16, arc / line), landed PyFlyt 0.22's line 90.5 %
 where the stiff-loops policy landed 83.0 %, and lands 23 of the 24 moving cells of its matrix at 90 % or more
-(docs/transfer.md, "Two corners, shipped")."""
+(docs/transfer.md, "Two corners, shipped"), and 35 / 32 of the 40 random RotorPy Crazyflies (the moving fine-tune:
+18 / 12). With ``--seed 1`` (``paper-moving-two-corners-seed1``): 21 of 24 moving cells, 34 / 29 of the 40."""
 
 PRESETS: dict[str, TrainConfig] = {
     "quick-cpu": _QUICK,
